@@ -1,0 +1,136 @@
+"""Per-element and per-vertex kernels of one ADMM iteration (SPEC section 4), column-batched.
+
+Shapes: u (n, nb); z, y, dz (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
+dtype V. ``basis`` (m, k) vec3 are the hat-function gradients, ``vol`` (m,) the element
+volumes a_e, k = d + 1 vertices per element.
+"""
+
+import functools
+import types
+
+import warp as wp
+
+from .lanes import lane_type
+
+# Rows of the ADMM accumulator array acc (5, nb).
+R2, GU2, Z2, S2, DY2 = 0, 1, 2, 3, 4
+
+
+@functools.cache
+def admm_kernels(scalar, W, k):
+    """ADMM kernels for lane vectors of W ``scalar`` values on elements with k vertices."""
+    V = lane_type(scalar, W)
+    V3 = wp.types.vector(3, scalar)
+    module = wp.get_module(f"warp_regdist_admm_{scalar.__name__}_{W}_{k}")
+    one = scalar(1.0)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
+                     u: wp.array2d(dtype=V), rho: wp.array(dtype=V), relaxation: scalar,
+                     z: wp.array3d(dtype=V), y: wp.array3d(dtype=V), dz: wp.array3d(dtype=V),
+                     acc: wp.array2d(dtype=V), chunk: int, m: int):
+        """Fused z- and y-steps on a chunk of elements, per column lane:
+
+            g = (G u)_e,  z_e = Proj_{|.|<=1}(y_e / rho + g),
+            y_e += rho (a g + (1 - a) z_old - z_e),  dz_e = z_e - z_old,
+        and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, GU2, Z2.
+        """
+        c, b = wp.tid()
+        rb = rho[b]
+        r2 = V()
+        g2 = V()
+        z2 = V()
+        for e in range(c * chunk, wp.min(c * chunk + chunk, m)):
+            gx = V()
+            gy = V()
+            gz = V()
+            for l in range(k):
+                ul = u[elements[e, l], b]
+                gl = basis[e, l]
+                gx += gl[0] * ul
+                gy += gl[1] * ul
+                gz += gl[2] * ul
+            vx = wp.cw_div(y[e, 0, b], rb) + gx
+            vy = wp.cw_div(y[e, 1, b], rb) + gy
+            vz = wp.cw_div(y[e, 2, b], rb) + gz
+            s = V()
+            for l in range(W):
+                s[l] = one / wp.max(one, wp.sqrt(vx[l] * vx[l] + vy[l] * vy[l] + vz[l] * vz[l]))
+            zx = wp.cw_mul(s, vx)
+            zy = wp.cw_mul(s, vy)
+            zz = wp.cw_mul(s, vz)
+            ox = z[e, 0, b]
+            oy = z[e, 1, b]
+            oz = z[e, 2, b]
+            y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, relaxation * gx + (one - relaxation) * ox - zx)
+            y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, relaxation * gy + (one - relaxation) * oy - zy)
+            y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, relaxation * gz + (one - relaxation) * oz - zz)
+            z[e, 0, b] = zx
+            z[e, 1, b] = zy
+            z[e, 2, b] = zz
+            dz[e, 0, b] = zx - ox
+            dz[e, 1, b] = zy - oy
+            dz[e, 2, b] = zz - oz
+            a = vol[e]
+            rx = gx - zx
+            ry = gy - zy
+            rz = gz - zz
+            r2 += a * (wp.cw_mul(rx, rx) + wp.cw_mul(ry, ry) + wp.cw_mul(rz, rz))
+            g2 += a * (wp.cw_mul(gx, gx) + wp.cw_mul(gy, gy) + wp.cw_mul(gz, gz))
+            z2 += a * (wp.cw_mul(zx, zx) + wp.cw_mul(zy, zy) + wp.cw_mul(zz, zz))
+        wp.atomic_add(acc, R2, b, r2)
+        wp.atomic_add(acc, GU2, b, g2)
+        wp.atomic_add(acc, Z2, b, z2)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def vertex_divergence(offsets: wp.array(dtype=wp.int32), incident: wp.array(dtype=wp.int32),
+                          local: wp.array(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
+                          mask: wp.array2d(dtype=V), y: wp.array3d(dtype=V), z: wp.array3d(dtype=V),
+                          dz: wp.array3d(dtype=V), Dy: wp.array2d(dtype=V), Dz: wp.array2d(dtype=V),
+                          acc: wp.array2d(dtype=V), chunk: int, n: int):
+        """Gather form of D = G^T M_F:  (D w)_i = sum over elements e at i of a_e basis[e, l_i] . w_e.
+
+        Writes Dy = D y and Dz = D z; adds |mask D dz|^2 and |mask D y|^2 to acc rows S2, DY2.
+        """
+        c, b = wp.tid()
+        s2 = V()
+        d2 = V()
+        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+            dy = V()
+            dzi = V()
+            ddz = V()
+            p = offsets[i]
+            pe = offsets[i + 1]
+            while p < pe:
+                e = incident[p]
+                w = vol[e] * basis[e, local[p]]
+                dy += w[0] * y[e, 0, b] + w[1] * y[e, 1, b] + w[2] * y[e, 2, b]
+                dzi += w[0] * z[e, 0, b] + w[1] * z[e, 1, b] + w[2] * z[e, 2, b]
+                ddz += w[0] * dz[e, 0, b] + w[1] * dz[e, 1, b] + w[2] * dz[e, 2, b]
+                p += 1
+            Dy[i, b] = dy
+            Dz[i, b] = dzi
+            mk = mask[i, b]
+            ddz = wp.cw_mul(mk, ddz)
+            dy = wp.cw_mul(mk, dy)
+            s2 += wp.cw_mul(ddz, ddz)
+            d2 += wp.cw_mul(dy, dy)
+        wp.atomic_add(acc, S2, b, s2)
+        wp.atomic_add(acc, DY2, b, d2)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def u_rhs(vertex_vol: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), Dy: wp.array2d(dtype=V),
+              Dz: wp.array2d(dtype=V), rho: wp.array(dtype=V), alpha: scalar, rhs: wp.array2d(dtype=V),
+              chunk: int, n: int):
+        """Right-hand side of the u-step scaled to the stiffness matrix W_D:
+            rhs = mask (A_V - D y + rho D z) / (alpha + rho)."""
+        c, b = wp.tid()
+        rb = rho[b]
+        den = V()
+        for l in range(W):
+            den[l] = alpha + rb[l]
+        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+            num = vertex_vol[i] * V(one) - Dy[i, b] + wp.cw_mul(rb, Dz[i, b])
+            rhs[i, b] = wp.cw_mul(mask[i, b], wp.cw_div(num, den))
+
+    return types.SimpleNamespace(element_step=element_step, vertex_divergence=vertex_divergence, u_rhs=u_rhs, V=V, V3=V3)

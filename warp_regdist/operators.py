@@ -1,0 +1,110 @@
+"""Piecewise-linear finite-element operators on a simplicial mesh (SPEC section 2).
+
+For element e with vertices v_0..v_d (d = 2 triangles, d = 3 tetrahedra) the hat
+function of v_l has the constant gradient ``basis[e, l]`` (a 3-vector tangent to the
+element). With the element volumes (areas) a_e:
+
+    G   (3m x n):  (G u)_e = sum_l basis[e, l] u[v_l]                       (dimensionless)
+    M_F (3m x 3m): diag(a_e) repeated for the three components
+    D   (n x 3m):  D = G^T M_F                                                 (length^(d-1))
+    W_D (n x n):   W_D = G^T M_F G, the cotangent stiffness matrix             (length^(d-2))
+    A_V (n,):      lumped vertex volumes, a_e / (d + 1) to each vertex of e    (length^d)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["Operators", "build_operators", "element_gradients"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Operators:
+    """Operators of one mesh, assembled once (float64, scipy / numpy).
+
+    Attributes
+    ----------
+    basis : (m, d + 1, 3) ndarray
+        Hat-function gradients per element and local vertex.
+    element_volumes : (m,) ndarray
+        Areas (triangles) or volumes (tetrahedra) a_e.
+    vertex_volumes : (n,) ndarray
+        Lumped vertex areas / volumes A_V.
+    total_volume : float
+        A = sum(a_e).
+    grad : (3m, n) scipy.sparse.csr_matrix
+        G; row 3 e + c is component c of the gradient on element e.
+    stiffness : (n, n) scipy.sparse.csr_matrix
+        W_D = G^T M_F G (symmetric positive semi-definite, constants in its kernel).
+    vertex_elements : tuple of three ndarrays (offsets (n+1,), element (k,), local (k,))
+        For vertex i, entries offsets[i]:offsets[i+1] list the incident elements and the
+        local index of i in each: the gather form of D.
+    """
+
+    basis: np.ndarray
+    element_volumes: np.ndarray
+    vertex_volumes: np.ndarray
+    total_volume: float
+    grad: sp.csr_matrix
+    stiffness: sp.csr_matrix
+    vertex_elements: tuple
+
+    @property
+    def length_scale(self):
+        """A^(1/d): the mesh's length unit (sqrt of the area, cube root of the volume)."""
+        d = self.basis.shape[1] - 1
+        return float(self.total_volume ** (1.0 / d))
+
+    def divergence(self):
+        """D = G^T M_F as an (n, 3m) CSR matrix."""
+        w = np.repeat(self.element_volumes, 3)
+        return (self.grad.T @ sp.diags(w)).tocsr()
+
+
+def element_gradients(vertices, elements):
+    """Hat-function gradients and volumes of simplices.
+
+    Parameters
+    ----------
+    vertices : (n, 3) ndarray of float
+    elements : (m, d + 1) ndarray of int, d in {2, 3}
+
+    Returns
+    -------
+    basis : (m, d + 1, 3) ndarray
+        basis[e, l] = gradient of the barycentric coordinate of local vertex l.
+    volumes : (m,) ndarray
+        Unsigned areas (d = 2) or volumes (d = 3).
+
+    With E = [v_1 - v_0, ..., v_d - v_0] (3 x d), the gradients of lambda_1..lambda_d are
+    the rows of the pseudo-inverse (E^T E)^{-1} E^T, and grad lambda_0 = -sum of the others.
+    """
+    P = vertices[elements]
+    d = elements.shape[1] - 1
+    E = np.transpose(P[:, 1:] - P[:, :1], (0, 2, 1))          # (m, 3, d)
+    gram = np.einsum("mki,mkj->mij", E, E)                     # (m, d, d)
+    rows = np.linalg.solve(gram, np.transpose(E, (0, 2, 1)))   # (m, d, 3)
+    basis = np.concatenate([-rows.sum(axis=1, keepdims=True), rows], axis=1)
+    volumes = np.sqrt(np.abs(np.linalg.det(gram))) / (1.0 if d == 1 else 2.0 if d == 2 else 6.0)
+    return basis, volumes
+
+
+def build_operators(mesh):
+    """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`."""
+    T = mesh.elements
+    n, m, k = mesh.n_vertices, T.shape[0], T.shape[1]
+    basis, vol = element_gradients(mesh.vertices, T)
+    rows = (3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :]).repeat(k, axis=1)
+    cols = np.broadcast_to(T[:, :, None], (m, k, 3))
+    G = sp.csr_matrix((basis.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, n))
+    W = (G.T @ sp.diags(np.repeat(vol, 3)) @ G).tocsr()
+    W = ((W + W.T) * 0.5).tocsr()
+    W.sort_indices()
+    AV = np.bincount(T.ravel(), weights=np.repeat(vol / k, k), minlength=n)
+    order = np.argsort(T.ravel(), kind="stable")
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(T.ravel(), minlength=n))])
+    vertex_elements = (offsets.astype(np.int64), (order // k).astype(np.int64), (order % k).astype(np.int64))
+    return Operators(basis, vol, AV, float(vol.sum()), G, W, vertex_elements)
