@@ -1,0 +1,288 @@
+"""The ``warp-regdist`` command: regularized geodesic distances from the shell.
+
+Subcommands: ``demo`` (the spot cow shipped with the package) and ``distance`` (any
+mesh file).  Bad input (missing or malformed files, bad sources, an unknown device, an
+unsupported output extension) ends with one line ``warp-regdist: error: ...`` on stderr
+and exit status 2; other exceptions are bugs and propagate with their traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.resources
+import os
+import re
+import sys
+import warnings
+
+import numpy as np
+
+__all__ = ["main"]
+
+PROG = "warp-regdist"
+DEMO_SOURCE = 2272
+DEMO_ALPHA_HAT = 0.05
+_OUTPUT_EXTENSIONS = (".npy", ".csv")
+_LISTED_SOURCES = 8  # sources named one by one in the summary
+
+
+_EXIT_STATUS = """\
+exit status:
+  0  the distance was written; also when the ADMM stopped at the iteration cap
+     without meeting its stopping test (then a line 'warp-regdist: warning: ...'
+     on stderr says so and the values are approximate)
+  2  bad input (missing or unreadable mesh, bad --sources, unsupported output
+     extension, unavailable device, ...): one line 'warp-regdist: error: ...'
+"""
+
+
+def _parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Regularized geodesic distances on triangle meshes (Edelstein et al.,\n"
+        "SIGGRAPH 2023), solved by ADMM with Warp kernels on the CPU or a CUDA GPU.",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def solver_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--device",
+            default=None,
+            help="Warp device: cpu, cuda, cuda:1, ... (default: Warp's default, the first CUDA "
+            "GPU if there is one, else cpu)",
+        )
+        p.add_argument(
+            "--dtype",
+            default="float64",
+            choices=("float64", "float32"),
+            help="precision of the solver (default: float64)",
+        )
+        p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
+
+    demo = sub.add_parser(
+        "demo",
+        help="solve on the shipped spot cow and write distance.npy and distance.png",
+        description=f"Solve from vertex {DEMO_SOURCE} of the spot cow (4764 vertices, shipped with\n"
+        f"the package) at alpha_hat {DEMO_ALPHA_HAT}; write distance.npy and distance.png.",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    demo.add_argument(
+        "--output",
+        default="warp-regdist-demo",
+        metavar="DIR",
+        help="output directory, created if missing (default: ./warp-regdist-demo)",
+    )
+    solver_options(demo)
+
+    distance = sub.add_parser(
+        "distance",
+        help="regularized distance on a mesh file, written as .npy or .csv",
+        description="Regularized geodesic distance from a set of source vertices on a triangle\n"
+        "mesh (OBJ, OFF, PLY or STL; vertex order as in the file).",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    distance.add_argument("mesh", metavar="MESH", help="triangle mesh file (.obj, .off, .ply, .stl)")
+    distance.add_argument(
+        "--sources",
+        required=True,
+        metavar="LIST",
+        help="comma-separated 0-based vertex indices (e.g. 2272,17), or 'boundary' for all "
+        "boundary vertices",
+    )
+    distance.add_argument(
+        "--alpha-hat",
+        type=float,
+        default=DEMO_ALPHA_HAT,
+        metavar="A",
+        help="scale-invariant regularization weight >= 0; alpha = A sqrt(area) (default: 0.05)",
+    )
+    distance.add_argument(
+        "--output",
+        required=True,
+        metavar="FILE",
+        help="distance per vertex: .npy (float64 array) or .csv (one value per line, full "
+        "precision, 'inf' for vertices no source reaches)",
+    )
+    distance.add_argument("--png", metavar="FILE", help="also write a picture of the distance (.png)")
+    solver_options(distance)
+    return parser
+
+
+def _check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in extensions:
+        raise ValueError(f"expected {option} ending in {' or '.join(extensions)}, got {path!r}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"expected {option} in an existing directory, got {path!r} (no directory {folder!r})")
+
+
+def _parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
+    """Source vertex indices (s,) and their description for the summary."""
+    from . import boundary_vertices
+
+    if text.strip().lower() == "boundary":
+        sources = boundary_vertices(mesh)
+        if sources.size == 0:
+            raise ValueError("expected a mesh with a boundary for --sources boundary, got a closed mesh")
+        return sources, f"{sources.size} boundary vertices"
+    items = [item.strip() for item in text.split(",")]
+    if not all(re.fullmatch(r"[+-]?\d+", item) for item in items):
+        raise ValueError(
+            f"expected --sources as comma-separated vertex indices (e.g. 2272,17) or 'boundary', got {text!r}"
+        )
+    sources = np.unique(np.array([int(item) for item in items], dtype=np.int64))
+    bad = sources[(sources < 0) | (sources >= mesh.n_vertices)]
+    if bad.size:
+        raise ValueError(
+            f"expected --sources in [0, {mesh.n_vertices - 1}] (the mesh has {mesh.n_vertices} "
+            f"vertices), got {bad[0]}"
+        )
+    listed = ", ".join(str(s) for s in sources[:_LISTED_SOURCES])
+    more = f", ... ({sources.size} in all)" if sources.size > _LISTED_SOURCES else ""
+    noun = "vertex" if sources.size == 1 else "vertices"
+    return sources, f"source {noun} {listed}{more}"
+
+
+def _write_values(path: str, values: np.ndarray) -> None:
+    if path.lower().endswith(".npy"):
+        np.save(path, values)
+    else:
+        with open(path, "w", encoding="ascii") as f:
+            f.writelines(f"{float(v)!r}\n" for v in values)
+
+
+def _warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str):
+    """Solve once; returns (solver, result), reporting non-convergence on stderr."""
+    import warp as wp
+
+    from . import ConvergenceWarning, DistanceSolver
+
+    wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
+    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = solver.solve(sources)
+    for w in caught:
+        if not issubclass(w.category, ConvergenceWarning):
+            _warn(str(w.message))
+    if not result.converged:
+        _warn(
+            f"the ADMM did not converge in {result.iterations} iterations (primal residual "
+            f"{result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}); the "
+            "distance written is approximate"
+        )
+    return solver, result
+
+
+def _load(path: str):
+    from . import load_mesh
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh = load_mesh(path)
+    for w in caught:
+        _warn(str(w.message))
+    return mesh
+
+
+def _summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
+    status = "converged" if result.converged else "NOT converged"
+    return (
+        f"{name}: {mesh.n_vertices} vertices, {mesh.n_elements} faces. Regularized geodesic "
+        f"distance from {described}, alpha_hat {solver.alpha_hat:g} (alpha {solver.alpha:.4g}), "
+        f"on {solver.device} in {solver.dtype}: {result.iterations} ADMM iterations, {status} "
+        f"(primal residual {result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}), "
+        f"{result.seconds:.2f} s. Largest finite distance "
+        f"{_finite_max(result.distance):.4g}. Wrote {', '.join(written)}."
+    )
+
+
+def _finite_max(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")
+
+
+def _distance(args: argparse.Namespace) -> None:
+    from .render import render_distance
+
+    _check_output(args.output, _OUTPUT_EXTENSIONS, "--output")
+    if args.png is not None:
+        _check_output(args.png, (".png",), "--png")
+    mesh = _load(args.mesh)
+    sources, described = _parse_sources(args.sources, mesh)
+    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype)
+    _write_values(args.output, result.distance)
+    written = [args.output]
+    if args.png is not None:
+        marked = None if args.sources.strip().lower() == "boundary" else sources
+        name = os.path.basename(args.mesh)
+        title = f"{name}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
+        render_distance(mesh, result.distance, args.png, sources=marked, title=title)
+        written.append(args.png)
+    if not args.quiet:
+        print(_summary(os.path.basename(args.mesh), mesh, described, solver, result, written))
+
+
+def _demo(args: argparse.Namespace) -> None:
+    from .render import render_distance
+
+    os.makedirs(args.output, exist_ok=True)
+    npy = os.path.join(args.output, "distance.npy")
+    png = os.path.join(args.output, "distance.png")
+    with importlib.resources.as_file(importlib.resources.files("warp_regdist") / "data" / "spot_rr.off") as path:
+        mesh = _load(os.fspath(path))
+    if not args.quiet:
+        print(
+            f"Demo: spot cow ({mesh.n_vertices} vertices, {mesh.n_elements} faces), source vertex "
+            f"{DEMO_SOURCE}, alpha_hat {DEMO_ALPHA_HAT}, {args.dtype}. Solving...",
+            flush=True,
+        )
+    solver, result = _solve(mesh, [DEMO_SOURCE], DEMO_ALPHA_HAT, args.device, args.dtype)
+    np.save(npy, result.distance)
+    title = f"spot: regularized geodesic distance from vertex {DEMO_SOURCE}, alpha_hat {DEMO_ALPHA_HAT:g}"
+    render_distance(mesh, result.distance, png, sources=[DEMO_SOURCE], title=title)
+    if not args.quiet:
+        print(_summary("spot_rr.off", mesh, f"source vertex {DEMO_SOURCE}", solver, result, [npy, png]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``warp-regdist`` command line; returns the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        0 on success (also when the ADMM did not converge: a warning line goes to
+        stderr), 2 on bad input or bad usage (one ``warp-regdist: error:`` line).
+    """
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version and usage errors
+        return exc.code if isinstance(exc.code, int) else 2
+    try:
+        {"demo": _demo, "distance": _distance}[args.command](args)
+    except (ValueError, OSError) as exc:  # MeshError is a ValueError
+        message = " ".join(str(exc).split())
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

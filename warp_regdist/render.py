@@ -1,0 +1,396 @@
+"""Pictures of per-vertex scalar fields on triangle meshes, drawn with matplotlib only.
+
+The renderer is a small software rasterizer built on matplotlib's Agg backend: the
+mesh is projected orthographically, its faces are painted back to front (painter's
+algorithm) as one ``PolyCollection`` with a flat Lambert-shaded colour per face, and the
+isolines are one ``LineCollection`` on top.  Isoline segments hidden behind the surface
+are removed with a depth buffer: the faces are drawn once more off screen with their
+depth encoded in the 24 RGB bits of the colour, and a segment is kept when it lies no
+further than a small lift (the median edge length) behind the surface seen at its
+pixel and, on a closed consistently oriented surface, when its face looks at the
+camera.  No figure is ever shown and matplotlib's global state (backend, rcParams) is
+left untouched.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+__all__ = ["isolines", "render_distance", "view_rotation"]
+
+_DPI = 150
+_PANEL_WIDTH_IN = 4.6  # width of one view in inches
+_MARGIN = 0.06  # empty border around the mesh, as a fraction of its projected size
+_LIGHT = np.array([-0.45, 0.65, 1.0]) / np.linalg.norm([-0.45, 0.65, 1.0])
+_AMBIENT = 0.42
+_UNREACHABLE_RGB = np.array([0.62, 0.62, 0.62])
+_ISOLINE_RGBA = (0.08, 0.08, 0.08, 0.85)
+_DEPTH_LEVELS = 2**24 - 2  # depth codes 1 .. 2^24 - 1 (0 is the empty background)
+
+
+def _vertices_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"expected mesh vertices of shape (n, 3), got {vertices.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError(f"expected triangle faces of shape (m, 3) with m >= 1, got {faces.shape}")
+    return vertices, faces
+
+
+def _vertex_values(values, n_vertices: int) -> np.ndarray:
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != (n_vertices,):
+        raise ValueError(f"expected one value per vertex, shape ({n_vertices},), got {values.shape}")
+    return values
+
+
+def isolines(mesh, values, levels) -> list[np.ndarray]:
+    """Level sets of a piecewise-linear function, computed exactly per triangle.
+
+    On a triangle the linear interpolant of the vertex values crosses the level c along
+    one straight segment whose endpoints lie on the two edges (i, j) with
+    ``v_i < c <= v_j`` (or the reverse), at ``p = x_i + t (x_j - x_i)``,
+    ``t = (c - v_i) / (v_j - v_i)`` (marching triangles).  A vertex with ``v = c``
+    counts as above the level, so a level through a mesh edge yields that edge once.
+    Triangles with a non-finite vertex value (``inf`` for unreachable vertices, ``nan``)
+    are skipped.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Triangle mesh; any object with ``vertices`` (n, 3) and ``faces`` (m, 3).
+    values : (n,) float
+        Value per vertex.
+    levels : (L,) float
+        Levels c to extract.
+
+    Returns
+    -------
+    list of (s_l, 2, 3) float64
+        For each level, its segments (start, end), oriented so that the values increase to
+        the left of the segment seen from the side the face normal points to (the face
+        ``(a, b, c)`` turning counter-clockwise).  Segments are unordered; two segments
+        meeting on a mesh edge share that endpoint exactly.
+    """
+    vertices, faces = _vertices_faces(mesh)
+    values = _vertex_values(values, len(vertices))
+    levels = np.atleast_1d(np.asarray(levels, dtype=np.float64))
+    if levels.ndim != 1:
+        raise ValueError(f"expected levels of shape (L,), got {levels.shape}")
+    segments, _, level_index = _isoline_segments(vertices, faces, values, levels)
+    order = np.argsort(level_index, kind="stable")
+    return np.split(segments[order], np.cumsum(np.bincount(level_index, minlength=len(levels)))[:-1])
+
+
+def _isoline_segments(vertices, faces, values, levels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All isoline segments (s, 2, 3), the face (s,) and the level index (s,) of each."""
+    face_values = values[faces]  # (m, 3)
+    finite = np.flatnonzero(np.isfinite(face_values).all(axis=1))
+    faces, face_values = faces[finite], face_values[finite]
+    above = face_values[:, :, None] >= levels[None, None, :]  # (m, 3, L)
+    count = above.sum(axis=1)  # (m, L)
+    face, level = np.nonzero((count == 1) | (count == 2))
+    # The odd vertex k is alone on its side; the segment joins edges (k, k+1) and (k, k+2).
+    odd_is_above = count[face, level] == 1
+    odd = np.argmax(above[face, :, level] == odd_is_above[:, None], axis=1)
+    k = np.stack([odd, (odd + 1) % 3, (odd + 2) % 3], axis=1)
+    fv = face_values[face[:, None], k]  # (s, 3) values at k, k+1, k+2
+    fx = vertices[faces[face[:, None], k]]  # (s, 3, 3)
+    # Interpolate from the vertex below the level on each crossed edge, so that the two
+    # faces sharing an edge compute its crossing point with the same operations.
+    up = odd_is_above[:, None]
+    v_lo, v_hi = np.where(up, fv[:, 1:], fv[:, :1]), np.where(up, fv[:, :1], fv[:, 1:])  # (s, 2)
+    x_lo = np.where(up[:, :, None], fx[:, 1:], fx[:, :1])  # (s, 2, 3)
+    x_hi = np.where(up[:, :, None], fx[:, :1], fx[:, 1:])
+    t = (levels[level][:, None] - v_lo) / (v_hi - v_lo)  # (s, 2), on edges (k, k+1) and (k, k+2)
+    ends = x_lo + t[:, :, None] * (x_hi - x_lo)  # (s, 2, 3)
+    # Values increase to the left of (edge (k,k+1) -> edge (k,k+2)) when k is above.
+    ends = np.where(odd_is_above[:, None, None], ends, ends[:, ::-1])
+    nonzero = np.any(ends[:, 0] != ends[:, 1], axis=1)
+    return ends[nonzero], finite[face[nonzero]], level[nonzero]
+
+
+def _default_levels(values: np.ndarray, count: int) -> np.ndarray:
+    finite = values[np.isfinite(values)]
+    if count <= 0 or finite.size == 0 or finite.max() <= finite.min():
+        return np.empty(0)
+    lo, hi = finite.min(), finite.max()
+    return lo + (hi - lo) * np.arange(1, count + 1) / (count + 1)
+
+
+def view_rotation(vertices, azimuth: float = 35.0, elevation: float = 15.0) -> np.ndarray:
+    """Camera rotation for a picture of a shape, from its bounding box and two angles.
+
+    The base frame looks along the coordinate axis of smallest extent, with the axis of
+    largest extent horizontal and the remaining axis pointing up (positive side up), so
+    an upright model stays upright.  (The principal axes of the vertices are not used:
+    they tilt shapes such as the spot cow by 40 degrees.)  The camera then turns by
+    ``azimuth`` around the screen's up axis and rises by ``elevation``.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Points to look at.
+    azimuth, elevation : float
+        Angles in degrees; (0, 0) looks straight along the axis of smallest extent, and
+        ``azimuth + 180`` shows the back.
+
+    Returns
+    -------
+    (3, 3) float64
+        Rotation R whose rows are the screen's right, up and toward-the-camera axes in
+        world coordinates: a point x is seen at ``R @ x`` (orthographic, larger z nearer).
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    extent = np.ptp(vertices, axis=0)
+    smallest, middle, largest = np.argsort(extent, kind="stable")
+    right, up = np.eye(3)[largest], np.eye(3)[middle]
+    base = np.stack([right, up, np.cross(right, up)])
+    a, e = np.radians(azimuth), np.radians(elevation)
+    turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    rise = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(e), -np.sin(e)], [0.0, np.sin(e), np.cos(e)]])
+    return rise @ turn @ base
+
+
+def _shading_normals(vertices: np.ndarray, faces: np.ndarray, face_normal: np.ndarray) -> np.ndarray:
+    """Per-face unit normals for smooth-looking flat shading, (m, 3).
+
+    The mean of the face's three vertex normals (area-weighted sums of the adjacent
+    face normals) varies smoothly across the surface, unlike the face normal; where it
+    vanishes (inconsistent orientation) the face normal is used.
+    """
+    vertex_normal = np.zeros_like(vertices)
+    for corner in range(3):
+        np.add.at(vertex_normal, faces[:, corner], face_normal)
+    vertex_normal /= np.maximum(np.linalg.norm(vertex_normal, axis=1), np.finfo(np.float64).tiny)[:, None]
+    smooth = vertex_normal[faces].sum(axis=1)
+    length = np.linalg.norm(smooth, axis=1)
+    flat_length = np.linalg.norm(face_normal, axis=1)
+    use_flat = length < 0.5
+    smooth[use_flat] = face_normal[use_flat]
+    length[use_flat] = flat_length[use_flat]
+    return smooth / np.maximum(length, np.finfo(np.float64).tiny)[:, None]
+
+
+def _outward(vertices: np.ndarray, faces: np.ndarray) -> int:
+    """+1 (-1) if the surface is closed and consistently oriented with outward (inward)
+    normals, 0 otherwise (open, non-manifold or inconsistently oriented)."""
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    _, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    if not np.all(counts == 2) or len(np.unique(directed, axis=0)) != len(directed):
+        return 0
+    x0, x1, x2 = (vertices[faces[:, i]] for i in range(3))
+    return 1 if np.einsum("ij,ij->", x0, np.cross(x1, x2)) >= 0 else -1
+
+
+def _views(view, closed: bool) -> list[tuple[float, float]]:
+    if view is None:
+        return [(35.0, 15.0), (215.0, 15.0)] if closed else [(35.0, 15.0)]
+    views = np.asarray(view, dtype=np.float64)
+    if views.shape == (2,):
+        views = views[None]
+    if views.ndim != 2 or views.shape[1] != 2 or len(views) == 0:
+        raise ValueError(
+            f"expected view as (azimuth, elevation) or a list of such pairs, got {view!r}"
+        )
+    return [tuple(v) for v in views]
+
+
+def _depth_codes(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    scale = _DEPTH_LEVELS / max(hi - lo, np.finfo(np.float64).tiny)
+    return 1 + np.clip(np.rint((depth - lo) * scale), 0, _DEPTH_LEVELS).astype(np.int64)
+
+
+def _depth_buffer(figsize, rects, limits, polygons, codes) -> np.ndarray:
+    """Render the faces with their depth codes as colours; returns (H, W) int64 codes."""
+    fig = Figure(figsize=figsize, dpi=_DPI)
+    canvas = FigureCanvasAgg(fig)
+    fig.patch.set_facecolor((0.0, 0.0, 0.0, 1.0))
+    for rect, (xlim, ylim), poly, code in zip(rects, limits, polygons, codes):
+        ax = fig.add_axes(rect)
+        ax.set_axis_off()
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        rgb = np.stack([(code >> 16) & 255, (code >> 8) & 255, code & 255], axis=1) / 255.0
+        ax.add_collection(
+            PolyCollection(poly, facecolors=rgb, edgecolors="none", antialiased=False), autolim=False
+        )
+    canvas.draw()
+    buf = np.asarray(canvas.buffer_rgba()).astype(np.int64)
+    return (buf[..., 0] << 16) | (buf[..., 1] << 8) | buf[..., 2]
+
+
+def _visible(ax, buffer, xy, code_min) -> np.ndarray:
+    """True where the depth code of a point is at least the buffer's at its pixel."""
+    height, width = buffer.shape
+    pix = ax.transData.transform(xy)
+    col = np.clip(np.floor(pix[:, 0]).astype(np.int64), 0, width - 1)
+    row = np.clip(height - 1 - np.floor(pix[:, 1]).astype(np.int64), 0, height - 1)
+    return code_min >= buffer[row, col]
+
+
+def render_distance(
+    mesh,
+    values,
+    path,
+    sources=None,
+    isolines: int | np.ndarray = 20,
+    title: str | None = None,
+    view=None,
+    cmap: str = "viridis",
+) -> None:
+    """Write a PNG of a triangle mesh coloured by a per-vertex field, with isolines.
+
+    Each face gets the colour map's colour of the mean of its vertex values, multiplied
+    by a two-sided Lambert shade ``0.42 + 0.58 |n . l|`` (n: mean of the face's vertex
+    normals, l: light from the upper left front).  Faces touching a non-finite value (``inf``: unreachable) are grey.
+    Isolines are exact per-triangle level sets of the linear interpolant (see
+    :func:`isolines`), drawn where the surface does not hide them.  Sources are red dots.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Triangle mesh; any object with ``vertices`` (n, 3) and ``faces`` (m, 3).
+    values : (n,) float
+        Value per vertex, e.g. a distance; ``inf``/``nan`` are drawn grey.
+    path : str or os.PathLike
+        Output file; written as PNG at 150 dpi.
+    sources : iterable of int, optional
+        Vertex indices to mark.
+    isolines : int or (L,) float
+        Number of evenly spaced levels strictly between the smallest and the largest
+        finite value, ``lo + (hi - lo) k / (L + 1)`` for k = 1..L, or the levels
+        themselves; 0 draws none.
+    title : str, optional
+        Text above the picture.
+    view : (2,) float or list of (2,) float, optional
+        Camera (azimuth, elevation) in degrees for each panel, relative to the frame of
+        :func:`view_rotation`.  Default: (35, 15), plus the back (215, 15) beside it when
+        the surface is closed.
+    cmap : str
+        Matplotlib colour map name.
+    """
+    vertices, faces = _vertices_faces(mesh)
+    values = _vertex_values(values, len(vertices))
+    outward = _outward(vertices, faces)
+    views = _views(view, outward != 0)
+    colormap = colormaps[cmap]
+    if np.ndim(isolines) == 0:
+        levels = _default_levels(values, int(isolines))
+    else:
+        levels = np.asarray(isolines, dtype=np.float64).ravel()
+    sources = np.unique(np.asarray([] if sources is None else list(sources), dtype=np.int64))
+    if sources.size and (sources.min() < 0 or sources.max() >= len(vertices)):
+        raise ValueError(
+            f"expected source indices in [0, {len(vertices)}), got {sources.min()}..{sources.max()}"
+        )
+
+    finite = np.isfinite(values)
+    lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
+    norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
+    face_values = values[faces].mean(axis=1)
+    face_finite = np.isfinite(face_values)
+    base_rgb = np.tile(_UNREACHABLE_RGB, (len(faces), 1))
+    base_rgb[face_finite] = colormap(norm(face_values[face_finite]))[:, :3]
+    segments, segment_face, _ = _isoline_segments(vertices, faces, values, levels)
+    x0, x1, x2 = (vertices[faces[:, i]] for i in range(3))
+    face_normal = np.cross(x1 - x0, x2 - x0)
+
+    center = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    lift = float(np.median(np.linalg.norm(x1 - x0, axis=1)))
+    rotations = [view_rotation(vertices, az, el) for az, el in views]
+    if view is None and sources.size and len(rotations) == 2:
+        # Show the side where the sources are first.
+        if np.mean((vertices[sources] - center) @ rotations[0][2]) < 0:
+            rotations.reverse()
+    projected = [(vertices - center) @ r.T for r in rotations]
+
+    # Layout: equal-size panels at one common scale, colourbar on the right.
+    lows = [p[:, :2].min(axis=0) for p in projected]
+    highs = [p[:, :2].max(axis=0) for p in projected]
+    half = 0.5 * np.max(np.subtract(highs, lows), axis=0) * (1.0 + _MARGIN)
+    half = np.maximum(half, 1e-12 + 0.02 * half.max())
+    panel_h = _PANEL_WIDTH_IN * half[1] / half[0]
+    top_in, bottom_in, cbar_in = (0.45 if title else 0.12), 0.12, 1.15
+    fig_w = _PANEL_WIDTH_IN * len(views) + cbar_in
+    fig_h = panel_h + top_in + bottom_in
+    rects = [
+        (i * _PANEL_WIDTH_IN / fig_w, bottom_in / fig_h, _PANEL_WIDTH_IN / fig_w, panel_h / fig_h)
+        for i in range(len(views))
+    ]
+    mids = [0.5 * (lo + hi) for lo, hi in zip(lows, highs)]
+    limits = [((m[0] - half[0], m[0] + half[0]), (m[1] - half[1], m[1] + half[1])) for m in mids]
+
+    shading_normals = _shading_normals(vertices, faces, face_normal)
+    polygons, colors, codes, depth_range = [], [], [], []
+    for p, rot in zip(projected, rotations):
+        tri = p[faces]  # (m, 3, 3) in view coordinates
+        lambert = np.abs(shading_normals @ (rot.T @ _LIGHT))
+        depth = tri[:, :, 2].mean(axis=1)
+        order = np.argsort(depth, kind="stable")  # far to near
+        polygons.append(tri[order, :, :2])
+        colors.append(base_rgb[order] * (_AMBIENT + (1.0 - _AMBIENT) * lambert[order])[:, None])
+        zlo, zhi = p[:, 2].min(), p[:, 2].max() + 3.0 * lift
+        depth_range.append((zlo, zhi))
+        codes.append(_depth_codes(depth[order], zlo, zhi))
+    figsize = (fig_w, fig_h)
+    buffer = _depth_buffer(figsize, rects, limits, polygons, codes)
+
+    fig = Figure(figsize=figsize, dpi=_DPI)
+    canvas = FigureCanvasAgg(fig)
+    fig.patch.set_facecolor("white")
+    for rect, (xlim, ylim), poly, col, rot, (zlo, zhi) in zip(
+        rects, limits, polygons, colors, rotations, depth_range
+    ):
+        ax = fig.add_axes(rect)
+        ax.set_axis_off()
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        ax.add_collection(
+            PolyCollection(poly, facecolors=col, edgecolors=col, linewidths=0.25, antialiased=True),
+            autolim=False,
+        )
+        if len(segments):
+            seg = (segments - center) @ rot.T  # (s, 2, 3)
+            mid = seg.mean(axis=1)
+            keep = _visible(ax, buffer, mid[:, :2], _depth_codes(mid[:, 2] + lift, zlo, zhi))
+            if outward:  # closed surface: back faces are hidden
+                keep &= outward * (face_normal[segment_face] @ rot[2]) > 0
+            ax.add_collection(
+                LineCollection(seg[keep, :, :2], colors=[_ISOLINE_RGBA], linewidths=0.7, capstyle="round"),
+                autolim=False,
+            )
+        if sources.size:
+            s = (vertices[sources] - center) @ rot.T
+            keep = _visible(ax, buffer, s[:, :2], _depth_codes(s[:, 2] + 3.0 * lift, zlo, zhi))
+            ax.scatter(
+                s[keep, 0], s[keep, 1], s=42, c="#e41a1c", edgecolors="white", linewidths=1.0, zorder=3, clip_on=False
+            )
+
+    cax = fig.add_axes(
+        (
+            (_PANEL_WIDTH_IN * len(views) + 0.15) / fig_w,
+            (bottom_in + 0.1 * panel_h) / fig_h,
+            0.16 / fig_w,
+            0.8 * panel_h / fig_h,
+        )
+    )
+    cbar = fig.colorbar(ScalarMappable(norm=norm, cmap=colormap), cax=cax)
+    if len(levels):
+        cbar.add_lines(levels, colors=[_ISOLINE_RGBA[:3]] * len(levels), linewidths=0.6)
+    cbar.ax.tick_params(labelsize=8)
+    cbar.set_label("distance", fontsize=9)
+    if not finite.all():
+        cax.text(0.5, -0.04, "grey:\nunreachable", transform=cax.transAxes, ha="center", va="top", fontsize=7)
+    if title:
+        fig.text(0.5, 1.0 - 0.1 / fig_h, title, ha="center", va="top", fontsize=11)
+    fig.savefig(os.fspath(path), format="png", dpi=_DPI)
