@@ -204,7 +204,15 @@ class DistanceSolver:
         elem_dim = ((m + chunk - 1) // chunk, nb)
         vert_dim = ((n + chunk - 1) // chunk, nb)
         sc = self.scalar
-        alpha, relax = sc(self.alpha), sc(tol.relaxation)
+        # Recorded launches: the arguments are fixed for the whole solve (rho lives in a device array).
+        divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
+            self._vertex_offsets, self._incident, self._local, self._basis, self._volumes,
+            ws["mask"], ws["y"], ws["z"], ws["dz"], ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
+        u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
+            self._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.alpha), ws["rhs"], chunk, n])
+        element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
+            self._elements, self._basis, self._volumes, ws["u"], ws["rho"], sc(tol.relaxation),
+            ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m])
         iterations = np.full(cols, -1)
         r = s = np.zeros(cols)
         eps_dual = eps_dual_abs
@@ -212,10 +220,7 @@ class DistanceSolver:
         it = 0
         last_print = t0
         for it in range(tol.max_iterations + 1):
-            wp.launch(kern.vertex_divergence, vert_dim,
-                      inputs=[self._vertex_offsets, self._incident, self._local, self._basis, self._volumes,
-                              ws["mask"], ws["y"], ws["z"], ws["dz"], ws["Dy"], ws["Dz"], ws["acc"], chunk, n],
-                      device=dev)
+            divergence.launch()
             if it > 0:
                 acc = ws["acc"].numpy().reshape(5, cols)
                 r = np.sqrt(acc[R2])
@@ -236,14 +241,11 @@ class DistanceSolver:
                     rho = np.where(up, rho * tol.penalty_factor, np.where(down, rho / tol.penalty_factor, rho))
                     ws["rho"].assign(rho.reshape(nb, W))
             ws["acc"].zero_()
-            wp.launch(kern.u_rhs, vert_dim, inputs=[self._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"],
-                                                    alpha, ws["rhs"], chunk, n], device=dev)
+            u_rhs.launch()
             cg_atol = tol.cg_fraction * eps_dual / (self.alpha + rho)
             cg_it, _ = ws["pcg"].solve(ws["rhs"], ws["u"], ws["mask"], tol.cg_rtol, tol.cg_max_iterations, cg_atol)
             cg_total += cg_it
-            wp.launch(kern.element_step, elem_dim,
-                      inputs=[self._elements, self._basis, self._volumes, ws["u"], ws["rho"], relax,
-                              ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m], device=dev)
+            element_step.launch()
 
         u = ws["u"].numpy().reshape(n, cols)[:, :k].astype(np.float64)
         for j, (src, reach) in enumerate(sets):
