@@ -159,7 +159,7 @@ def boundary_vertices(mesh):
 
 
 _POLYGON_LINE = {
-    ".obj": re.compile(rb"^\s*f((?:\s+\S+){4,})\s*$", re.M),
+    ".obj": re.compile(rb"^[ \t]*f((?:[ \t]+\S+){4,})[ \t]*\r?$", re.M),
 }
 
 
@@ -181,14 +181,16 @@ def load_mesh(path):
     try:
         kwargs = {"maintain_order": True} if ext == ".obj" else {}
         loaded = trimesh.load(path, process=False, force="mesh", **kwargs)
+    except ImportError:  # trimesh tries optional text decoders on binary garbage
+        raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file") from None
     except Exception as exc:  # trimesh raises many types for malformed files
         raise MeshError(f"could not read mesh file {path!r}: {exc}") from None
     V = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
     F = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))))
-    if V.shape[0] == 0:
-        raise MeshError(f"expected vertices in {path!r}, got none (empty or unreadable file)")
     if F.size == 0:
-        raise MeshError(f"expected faces in {path!r}, got none (a point cloud is not a mesh)")
+        raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
+    if V.shape[0] == 0:
+        raise MeshError(f"expected vertices in {path!r}, got none")
     n_poly = _count_polygons(path, ext)
     if n_poly:
         warnings.warn(f"{path}: {n_poly} polygon faces with more than 3 corners were triangulated", stacklevel=2)

@@ -214,6 +214,8 @@ class DistanceSolver:
             self._elements, self._basis, self._volumes, ws["u"], ws["rho"], sc(tol.relaxation),
             ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m])
         iterations = np.full(cols, -1)
+        out = np.zeros((n, k))
+        r_out, s_out = np.zeros(k), np.zeros(k)
         r = s = np.zeros(cols)
         eps_dual = eps_dual_abs
         cg_total = 0
@@ -228,15 +230,22 @@ class DistanceSolver:
                 eps_pri = eps_pri_abs + tol.eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
                 eps_dual = eps_dual_abs + tol.eps_rel * np.sqrt(acc[DY2])
                 done = (r < eps_pri) & (s < eps_dual)
-                iterations[(iterations < 0) & done] = it
+                new = np.flatnonzero((iterations < 0) & done)
+                new = new[new < k]
+                if new.size:  # freeze each column at the iterate that met its stopping test
+                    iterations[new] = it
+                    out[:, new] = ws["u"].numpy().reshape(n, cols)[:, new]
+                    r_out[new], s_out[new] = r[new], s[new]
                 if verbose and (time.perf_counter() - last_print > 2.0):
                     last_print = time.perf_counter()
-                    print(f"  ADMM iteration {it}: r/eps_pri {np.max(r / eps_pri):.3g}, s/eps_dual "
-                          f"{np.max(s / eps_dual):.3g}, {last_print - t0:.1f} s", file=sys.stderr)
+                    print(f"  ADMM iteration {it}: {np.count_nonzero(iterations[:k] >= 0)}/{k} converged, "
+                          f"max r/eps_pri {np.max(r / eps_pri):.3g}, max s/eps_dual {np.max(s / eps_dual):.3g}, "
+                          f"{last_print - t0:.1f} s", file=sys.stderr)
                 if np.all(iterations[:k] >= 0) or it == tol.max_iterations:
                     break
-                up = r > tol.penalty_ratio * s
-                down = s > tol.penalty_ratio * r
+                # Residual balancing on the normalized residuals (r and s have different units).
+                up = r / eps_pri > tol.penalty_ratio * (s / eps_dual)
+                down = s / eps_dual > tol.penalty_ratio * (r / eps_pri)
                 if up.any() or down.any():
                     rho = np.where(up, rho * tol.penalty_factor, np.where(down, rho / tol.penalty_factor, rho))
                     ws["rho"].assign(rho.reshape(nb, W))
@@ -247,7 +256,10 @@ class DistanceSolver:
             cg_total += cg_it
             element_step.launch()
 
-        u = ws["u"].numpy().reshape(n, cols)[:, :k].astype(np.float64)
+        late = np.flatnonzero(iterations[:k] < 0)
+        out[:, late] = ws["u"].numpy().reshape(n, cols)[:, late]
+        r_out[late], s_out[late] = r[late], s[late]
+        u = out
         for j, (src, reach) in enumerate(sets):
             u[~reach, j] = np.inf
             u[src, j] = 0.0
@@ -257,4 +269,4 @@ class DistanceSolver:
                           f"{np.count_nonzero(~converged)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return DistanceResult(
             distance=u, iterations=np.where(converged, iterations[:k], it), converged=converged,
-            primal_residual=r[:k], dual_residual=s[:k], cg_iterations=cg_total, seconds=time.perf_counter() - t0)
+            primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0)
