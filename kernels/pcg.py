@@ -1,4 +1,4 @@
-"""Batched Jacobi-preconditioned conjugate gradient kernels for  mask * K * mask  x = b.
+"""Batched preconditioned conjugate gradient kernels for  mask * K * mask  x = b.
 
 K is a symmetric CSR matrix with scalar values shared by all columns; ``mask`` (n, nb)
 is 1 on the free unknowns of each column and 0 on fixed ones (sources, unreachable
@@ -6,6 +6,10 @@ vertices), where x, b and every iterate stay 0. Dot products are per lane and ke
 small accumulator array ``acc`` of shape (3, 4, nb): three rotating slots (iteration
 k uses slot k % 3, reads slot (k - 1) % 3 and clears slot (k + 1) % 3) with rows
 PQ, RZ, RR, BB, so that no launch is needed to reset them.
+
+With ``jacobi`` = 1, cg_init and cg_update also apply the Jacobi preconditioner
+z = D^-1 r and add r.z to RZ (cg_init also sets p = z); with ``jacobi`` = 0 they leave z,
+p and RZ to a separate preconditioner (kernels/multigrid.py) followed by cg_direction.
 """
 
 import functools
@@ -40,8 +44,8 @@ def pcg_kernels(scalar, W):
     def cg_init(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
                 dinv: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), rhs: wp.array2d(dtype=V),
                 x: wp.array2d(dtype=V), r: wp.array2d(dtype=V), z: wp.array2d(dtype=V), p: wp.array2d(dtype=V),
-                acc: wp.array3d(dtype=V), chunk: int, n: int):
-        """r = b - mask K x, z = p = D^-1 r; slot 0: RZ, RR, BB (= |b|^2)."""
+                acc: wp.array3d(dtype=V), jacobi: int, chunk: int, n: int):
+        """r = b - mask K x; slot 0: RR, BB (= |b|^2); with jacobi: z = p = D^-1 r and RZ."""
         c, b = wp.tid()
         rz = V()
         rr = V()
@@ -49,14 +53,16 @@ def pcg_kernels(scalar, W):
         for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
             mk = mask[i, b]
             ri = rhs[i, b] - wp.cw_mul(mk, matvec_row(offsets, cols, vals, x, i, b))
-            zi = dinv[i] * ri
             r[i, b] = ri
-            z[i, b] = zi
-            p[i, b] = zi
-            rz += wp.cw_mul(ri, zi)
+            if jacobi != 0:
+                zi = dinv[i] * ri
+                z[i, b] = zi
+                p[i, b] = zi
+                rz += wp.cw_mul(ri, zi)
             rr += wp.cw_mul(ri, ri)
             bb += wp.cw_mul(rhs[i, b], rhs[i, b])
-        wp.atomic_add(acc, 0, RZ, b, rz)
+        if jacobi != 0:
+            wp.atomic_add(acc, 0, RZ, b, rz)
         wp.atomic_add(acc, 0, RR, b, rr)
         wp.atomic_add(acc, 0, BB, b, bb)
 
@@ -76,8 +82,9 @@ def pcg_kernels(scalar, W):
     @wp.kernel(enable_backward=False, module=module)
     def cg_update(dinv: wp.array(dtype=scalar), x: wp.array2d(dtype=V), r: wp.array2d(dtype=V),
                   z: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
-                  acc: wp.array3d(dtype=V), tol2: wp.array(dtype=V), slot: int, prev: int, chunk: int, n: int):
-        """x += a p, r -= a q, z = D^-1 r with a = rz_prev / pq per lane (0 on lanes with |r|^2 <= tol2)."""
+                  acc: wp.array3d(dtype=V), tol2: wp.array(dtype=V), slot: int, prev: int, jacobi: int,
+                  chunk: int, n: int):
+        """x += a p, r -= a q, a = rz_prev / pq per lane (0 where |r|^2 <= tol2); with jacobi: z = D^-1 r, RZ."""
         c, b = wp.tid()
         a = V()
         for l in range(W):
@@ -89,12 +96,14 @@ def pcg_kernels(scalar, W):
         for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
             x[i, b] = x[i, b] + wp.cw_mul(a, p[i, b])
             ri = r[i, b] - wp.cw_mul(a, q[i, b])
-            zi = dinv[i] * ri
             r[i, b] = ri
-            z[i, b] = zi
-            rz += wp.cw_mul(ri, zi)
+            if jacobi != 0:
+                zi = dinv[i] * ri
+                z[i, b] = zi
+                rz += wp.cw_mul(ri, zi)
             rr += wp.cw_mul(ri, ri)
-        wp.atomic_add(acc, slot, RZ, b, rz)
+        if jacobi != 0:
+            wp.atomic_add(acc, slot, RZ, b, rz)
         wp.atomic_add(acc, slot, RR, b, rr)
 
     @wp.kernel(enable_backward=False, module=module)
@@ -115,4 +124,4 @@ def pcg_kernels(scalar, W):
             acc[nxt, RR, b] = V()
 
     return types.SimpleNamespace(cg_init=cg_init, cg_matvec=cg_matvec, cg_update=cg_update,
-                                 cg_direction=cg_direction, V=V)
+                                 cg_direction=cg_direction, matvec_row=matvec_row, V=V)
