@@ -141,6 +141,7 @@ class BatchedPCG:
         self.chunk = chunk_size(device)
         self.dim = ((self.n + self.chunk - 1) // self.chunk, blocks)
         self.scalar = scalar
+        self._recorded = {}
         if isinstance(preconditioner, str) and preconditioner == "multigrid":
             preconditioner = smoothed_aggregation(K)
         if isinstance(preconditioner, Hierarchy):
@@ -151,6 +152,29 @@ class BatchedPCG:
             self.vcycle = None
         else:
             raise ValueError(f"expected preconditioner 'multigrid', 'jacobi' or a Hierarchy, got {preconditioner!r}")
+
+    def _commands(self, rhs, x, mask):
+        """Recorded launches (init, matvec[slot], update[slot], direction[slot]) for these arrays."""
+        key = (rhs.ptr, x.ptr, mask.ptr)
+        if key not in self._recorded:
+            k, chunk, n, dev = self.kernels, self.chunk, self.n, self.device
+            jacobi = int(self.vcycle is None)
+
+            def rec(kernel, *args):
+                return wp.launch(kernel, self.dim, inputs=list(args), device=dev, record_cmd=True)
+
+            init = rec(k.cg_init, self.offsets, self.columns, self.values, self.dinv, mask, rhs, x,
+                       self.r, self.z, self.p, self.acc, jacobi, chunk, n)
+            matvec, update, direction = [], [], []
+            for slot in range(3):
+                prev, nxt = (slot - 1) % 3, (slot + 1) % 3
+                matvec.append(rec(k.cg_matvec, self.offsets, self.columns, self.values, mask, self.p, self.q,
+                                  self.acc, slot, chunk, n))
+                update.append(rec(k.cg_update, self.dinv, x, self.r, self.z, self.p, self.q, self.acc,
+                                  self.tol2, slot, prev, jacobi, chunk, n))
+                direction.append(rec(k.cg_direction, self.p, self.z, self.acc, slot, prev, nxt, chunk, n))
+            self._recorded = {key: (init, matvec, update, direction)}
+        return self._recorded[key]
 
     def _accumulators(self):
         return self.acc.numpy().reshape(3, 4, -1)
@@ -173,12 +197,9 @@ class BatchedPCG:
         iterations : int
         relative_residual : (nb * width,) ndarray, |r| / |b| per lane (0 where b = 0).
         """
-        k = self.kernels
-        chunk, n = self.chunk, self.n
-        jacobi = int(self.vcycle is None)
+        init, matvec, update, direction = self._commands(rhs, x, mask)
         self.acc.zero_()
-        wp.launch(k.cg_init, self.dim, inputs=[self.offsets, self.columns, self.values, self.dinv, mask, rhs, x,
-                                               self.r, self.z, self.p, self.acc, jacobi, chunk, n], device=self.device)
+        init.launch()
         acc = self._accumulators()
         tol2 = np.maximum(rtol * rtol * acc[0, BB], np.square(atol))
         self.tol2.assign(tol2.reshape(self.tol2.shape + (self.width,)))
@@ -187,22 +208,18 @@ class BatchedPCG:
         if self.vcycle is not None and not np.all(acc[slot, RR] <= tol2):
             # z = M r and RZ into slot 0, then p = z (beta = 0: slot 2 is still zero)
             self.vcycle.apply(mask, self.r, self.z, self.acc, 0)
-            wp.launch(k.cg_direction, self.dim, inputs=[self.p, self.z, self.acc, 0, 2, 1, chunk, n],
-                      device=self.device)
+            direction[0].launch()
         while not np.all(acc[slot, RR] <= tol2) and it < max_iterations:
             it += 1
-            prev, slot = slot, it % 3
-            wp.launch(k.cg_matvec, self.dim, inputs=[self.offsets, self.columns, self.values, mask, self.p, self.q,
-                                                     self.acc, slot, chunk, n], device=self.device)
-            wp.launch(k.cg_update, self.dim, inputs=[self.dinv, x, self.r, self.z, self.p, self.q, self.acc,
-                                                     self.tol2, slot, prev, jacobi, chunk, n], device=self.device)
+            slot = it % 3
+            matvec[slot].launch()
+            update[slot].launch()
             acc = self._accumulators()
             if np.all(acc[slot, RR] <= tol2):
                 break
             if self.vcycle is not None:
                 self.vcycle.apply(mask, self.r, self.z, self.acc, slot)
-            wp.launch(k.cg_direction, self.dim, inputs=[self.p, self.z, self.acc, slot, prev, (it + 1) % 3, chunk, n],
-                      device=self.device)
+            direction[slot].launch()
         bb = acc[0, BB]
         rel = np.sqrt(np.divide(acc[slot, RR], bb, out=np.zeros_like(bb), where=bb > 0))
         return it, rel

@@ -24,6 +24,7 @@ from scipy.optimize import OptimizeResult, OptimizeWarning
 from .kernels.admm import DY2, GU2, R2, S2, Z2, admm_kernels
 from .kernels.lanes import SCALARS, chunk_size, lane_type, lane_width
 from .mesh import Mesh
+from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
 from .tolerances import tolerances
@@ -113,6 +114,7 @@ class DistanceSolver:
         self._vertex_offsets = wp.array(off.astype(np.int32), dtype=wp.int32, device=dev)
         self._incident = wp.array(inc.astype(np.int32), dtype=wp.int32, device=dev)
         self._local = wp.array(loc.astype(np.int32), dtype=wp.int32, device=dev)
+        self._hierarchy = smoothed_aggregation(ops.stiffness)
         self._workspaces = {}
 
     # ------------------------------------------------------------------ input checks
@@ -168,7 +170,7 @@ class DistanceSolver:
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 dz=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
-                pcg=BatchedPCG(self.operators.stiffness, self.scalar, W, nb, dev),
+                pcg=BatchedPCG(self.operators.stiffness, self.scalar, W, nb, dev, preconditioner=self._hierarchy),
             )
             self._workspaces = {key: ws}  # keep one workspace: memory scales with the batch
         return self._workspaces[key]
