@@ -84,11 +84,11 @@ def admm_kernels(scalar, W, k):
 
     @wp.kernel(enable_backward=False, module=module)
     def vertex_divergence(offsets: wp.array(dtype=wp.int32), incident: wp.array(dtype=wp.int32),
-                          local: wp.array(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
-                          mask: wp.array2d(dtype=V), y: wp.array3d(dtype=V), z: wp.array3d(dtype=V),
+                          weights: wp.array(dtype=V3), mask: wp.array2d(dtype=V), y: wp.array3d(dtype=V), z: wp.array3d(dtype=V),
                           dz: wp.array3d(dtype=V), Dy: wp.array2d(dtype=V), Dz: wp.array2d(dtype=V),
                           acc: wp.array2d(dtype=V), chunk: int, n: int):
-        """Gather form of D = G^T M_F:  (D w)_i = sum over elements e at i of a_e basis[e, l_i] . w_e.
+        """Gather form of D = G^T M_F:  (D w)_i = sum over elements e at i of a_e basis[e, l_i] . w_e,
+        with the products a_e basis[e, l_i] precomputed per (vertex, element) pair in ``weights``.
 
         Writes Dy = D y and Dz = D z; adds |mask D dz|^2 and |mask D y|^2 to acc rows S2, DY2.
         """
@@ -103,7 +103,7 @@ def admm_kernels(scalar, W, k):
             pe = offsets[i + 1]
             while p < pe:
                 e = incident[p]
-                w = vol[e] * basis[e, local[p]]
+                w = weights[p]
                 dy += w[0] * y[e, 0, b] + w[1] * y[e, 1, b] + w[2] * y[e, 2, b]
                 dzi += w[0] * z[e, 0, b] + w[1] * z[e, 1, b] + w[2] * z[e, 2, b]
                 ddz += w[0] * dz[e, 0, b] + w[1] * dz[e, 1, b] + w[2] * dz[e, 2, b]

@@ -113,7 +113,8 @@ class DistanceSolver:
         off, inc, loc = ops.vertex_elements
         self._vertex_offsets = wp.array(off.astype(np.int32), dtype=wp.int32, device=dev)
         self._incident = wp.array(inc.astype(np.int32), dtype=wp.int32, device=dev)
-        self._local = wp.array(loc.astype(np.int32), dtype=wp.int32, device=dev)
+        self._pair_weights = wp.array(ops.element_volumes[inc, None] * ops.basis[inc, loc],
+                                      dtype=wp.types.vector(3, sc), device=dev)
         self._hierarchy = smoothed_aggregation(ops.stiffness)
         self._workspaces = {}
 
@@ -208,8 +209,8 @@ class DistanceSolver:
         sc = self.scalar
         # Recorded launches: the arguments are fixed for the whole solve (rho lives in a device array).
         divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
-            self._vertex_offsets, self._incident, self._local, self._basis, self._volumes,
-            ws["mask"], ws["y"], ws["z"], ws["dz"], ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
+            self._vertex_offsets, self._incident, self._pair_weights, ws["mask"], ws["y"], ws["z"], ws["dz"],
+            ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
         u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
             self._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.alpha), ws["rhs"], chunk, n])
         element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
@@ -245,9 +246,10 @@ class DistanceSolver:
                           f"{last_print - t0:.1f} s", file=sys.stderr)
                 if np.all(iterations[:k] >= 0) or it == tol.max_iterations:
                     break
-                # Residual balancing on the normalized residuals (r and s have different units).
-                up = r / eps_pri > tol.penalty_ratio * (s / eps_dual)
-                down = s / eps_dual > tol.penalty_ratio * (r / eps_pri)
+                # Residual balancing (Boyd 3.4.1) made scale-invariant: r is a length, s an area,
+                # so compare r L with s (the authors' r vs s is this rule at L = 1 only).
+                up = r * L > tol.penalty_ratio * s
+                down = s > tol.penalty_ratio * r * L
                 if up.any() or down.any():
                     rho = np.where(up, rho * tol.penalty_factor, np.where(down, rho / tol.penalty_factor, rho))
                     ws["rho"].assign(rho.reshape(nb, W))
