@@ -1,0 +1,151 @@
+"""Single-source benchmark: this package vs the same ADMM with a direct factorization (scipy).
+
+    python benchmarks/single_source.py                # spot, pipe, 100k sphere, 64-source batch
+    python benchmarks/single_source.py --large        # also the 1M-vertex sphere
+    python benchmarks/single_source.py --quick        # spot and pipe only, 8-source batch
+
+Prints a markdown table and writes benchmarks/results/single_source.csv. Each case runs in
+its own process (so peak memory is its own); solve times are medians over repeats after
+one warm-up solve (kernel cache warm). The error column is against the exact minimizer
+of the discrete problem where one is available: the shipped interior-point reference on
+spot, and the scipy baseline run to tight tolerances (eps / 100) elsewhere.
+"""
+
+import argparse
+import csv
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+CASES = {  # name: (mesh, source, alpha_hat, repeats)
+    "spot_rr": ("spot_rr", 2272, 0.05, 5),
+    "bent_pipe_closed_lr": ("bent_pipe_closed_lr", 4882, 0.05, 5),
+    "sphere_100k": ("cube_sphere:129", 0, 0.05, 2),
+    "sphere_1M": ("cube_sphere:408", 0, 0.05, 1),
+}
+
+
+def load(spec):
+    import meshes
+    if spec.startswith("cube_sphere:"):
+        return meshes.cube_sphere(int(spec.split(":")[1]))
+    return meshes.shared_mesh(spec)
+
+
+def run_case(name, baseline=True):
+    """One case in this process -> dict of measurements."""
+    import warp as wp
+    wp.config.quiet = True
+    import warp_regdist as wrd
+    import scipy_admm
+
+    spec, source, alpha_hat, repeats = CASES[name]
+    mesh = load(spec)
+    if mesh is None:
+        return {"case": name, "skipped": "../shared/meshes not found"}
+    t = time.perf_counter()
+    solver = wrd.DistanceSolver(mesh, alpha_hat=alpha_hat, device="cpu")
+    setup = time.perf_counter() - t
+    results = [solver.solve([source]) for _ in range(repeats + 1)][1:]
+    res = results[-1]
+    row = {"case": name, "vertices": mesh.n_vertices, "faces": mesh.n_elements, "alpha_hat": alpha_hat,
+           "setup_s": setup, "solve_s": float(np.median([r.seconds for r in results])),
+           "admm_iterations": int(res.iterations), "cg_iterations": int(res.cg_iterations),
+           "primal_residual": float(res.primal_residual), "dual_residual": float(res.dual_residual),
+           "converged": bool(res.converged)}
+    exact = None
+    ref = os.path.join(HERE, "..", "..", "shared", "reference", f"{name}__{source}__a{alpha_hat}_exact.txt")
+    if os.path.isfile(ref):
+        exact = np.loadtxt(ref)
+    if baseline:
+        base = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat)
+        row.update(baseline_s=base["seconds"], baseline_iterations=int(base["iterations"]))
+        if exact is None and mesh.n_vertices <= 20000:
+            tight = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat,
+                                          eps_abs=5e-8, eps_rel=1e-4, max_iter=50000)
+            exact = tight["u"]
+    if exact is not None:
+        row["max_error_pct"] = float(100 * np.abs(res.distance - exact).max() / exact.max())
+    row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return row
+
+
+def run_batch(k):
+    """k random sources on spot: one batched solve_many vs k single solves."""
+    import warp as wp
+    wp.config.quiet = True
+    import warp_regdist as wrd
+    mesh = load("spot_rr")
+    if mesh is None:
+        return {"case": f"batch_{k}", "skipped": "../shared/meshes not found"}
+    sources = np.random.default_rng(0).choice(mesh.n_vertices, k, replace=False)
+    solver = wrd.DistanceSolver(mesh, alpha_hat=0.05, device="cpu")
+    solver.solve_many([[s] for s in sources])  # warm-up: load this batch width's kernels
+    solver.solve([sources[0]])
+    batch = solver.solve_many([[s] for s in sources])
+    singles = [solver.solve([s]) for s in sources]
+    single_s = sum(r.seconds for r in singles)
+    diff = max(np.abs(batch.distance[:, j] - singles[j].distance).max() for j in range(k)) / batch.distance.max()
+    return {"case": f"batch_{k}", "vertices": mesh.n_vertices, "faces": mesh.n_elements, "sources": k,
+            "batched_s": batch.seconds, "singles_s": single_s, "speedup_per_source": single_s / batch.seconds,
+            "batched_admm_iterations_max": int(batch.iterations.max()), "batched_cg_iterations": batch.cg_iterations,
+            "max_batch_vs_single_pct": 100 * diff}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--large", action="store_true", help="include the 1M-vertex sphere")
+    ap.add_argument("--quick", action="store_true", help="spot and pipe only, 8-source batch")
+    ap.add_argument("--case", help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=os.path.join(HERE, "results"))
+    args = ap.parse_args()
+    if args.case:  # child process
+        row = run_batch(int(args.case.split("_")[1])) if args.case.startswith("batch_") else \
+            run_case(args.case, baseline=args.case != "sphere_1M")
+        print("RESULT " + json.dumps(row))
+        return
+    names = ["spot_rr", "bent_pipe_closed_lr"]
+    if not args.quick:
+        names.append("sphere_100k")
+    if args.large:
+        names.append("sphere_1M")
+    names.append("batch_8" if args.quick else "batch_64")
+    rows = []
+    for name in names:
+        print(f"running {name} ...", file=sys.stderr, flush=True)
+        out = subprocess.run([sys.executable, __file__, "--case", name], capture_output=True, text=True)
+        line = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
+        if not line:
+            print(out.stdout[-2000:], out.stderr[-2000:], file=sys.stderr)
+            continue
+        rows.append(json.loads(line[0][7:]))
+        print("  " + json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    os.makedirs(args.out, exist_ok=True)
+    path = os.path.join(args.out, "single_source.csv")
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    for group in ([r for r in rows if not r["case"].startswith("batch")], [r for r in rows if r["case"].startswith("batch")]):
+        if not group:
+            continue
+        cols = list(dict.fromkeys(k for r in group for k in r))
+        print("| " + " | ".join(cols) + " |")
+        print("|" + "---|" * len(cols))
+        for r in group:
+            print("| " + " | ".join(f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols) + " |")
+        print()
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
