@@ -67,13 +67,17 @@ def run_case(name, baseline=True):
         exact = np.loadtxt(ref)
     if baseline:
         base = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat)
-        row.update(baseline_s=base["seconds"], baseline_iterations=int(base["iterations"]))
+        authors = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat, rule=scipy_admm.AUTHORS_RULE)
+        row.update(baseline_s=base["seconds"], baseline_iterations=int(base["iterations"]),
+                   authors_rule_iterations=int(authors["iterations"]))
         if exact is None and mesh.n_vertices <= 20000:
             tight = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat,
-                                          eps_abs=5e-8, eps_rel=1e-4, max_iter=50000)
+                                          eps_abs=1e-9, eps_rel=1e-6, eps_rel_dual=1e-4, max_iter=50000)
             exact = tight["u"]
     if exact is not None:
         row["max_error_pct"] = float(100 * np.abs(res.distance - exact).max() / exact.max())
+        if baseline:
+            row["authors_rule_error_pct"] = float(100 * np.abs(authors["u"] - exact).max() / exact.max())
     row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     return row
 

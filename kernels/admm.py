@@ -29,10 +29,10 @@ def admm_kernels(scalar, W, k):
                      u: wp.array2d(dtype=V), rho: wp.array(dtype=V), relaxation: scalar,
                      z: wp.array3d(dtype=V), y: wp.array3d(dtype=V), dz: wp.array3d(dtype=V),
                      acc: wp.array2d(dtype=V), chunk: int, m: int):
-        """Fused z- and y-steps on a chunk of elements, per column lane:
+        """Fused over-relaxed z- and y-steps on a chunk of elements, per column lane:
 
-            g = (G u)_e,  z_e = Proj_{|.|<=1}(y_e / rho + g),
-            y_e += rho (a g + (1 - a) z_old - z_e),  dz_e = z_e - z_old,
+            g = (G u)_e,  h = a g + (1 - a) z_old,  z_e = Proj_{|.|<=1}(y_e / rho + h),
+            y_e += rho (h - z_e),  dz_e = z_e - z_old,
         and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, GU2, Z2.
         """
         c, b = wp.tid()
@@ -50,21 +50,24 @@ def admm_kernels(scalar, W, k):
                 gx += gl[0] * ul
                 gy += gl[1] * ul
                 gz += gl[2] * ul
-            vx = wp.cw_div(y[e, 0, b], rb) + gx
-            vy = wp.cw_div(y[e, 1, b], rb) + gy
-            vz = wp.cw_div(y[e, 2, b], rb) + gz
+            ox = z[e, 0, b]
+            oy = z[e, 1, b]
+            oz = z[e, 2, b]
+            hx = relaxation * gx + (one - relaxation) * ox
+            hy = relaxation * gy + (one - relaxation) * oy
+            hz = relaxation * gz + (one - relaxation) * oz
+            vx = wp.cw_div(y[e, 0, b], rb) + hx
+            vy = wp.cw_div(y[e, 1, b], rb) + hy
+            vz = wp.cw_div(y[e, 2, b], rb) + hz
             s = V()
             for l in range(W):
                 s[l] = one / wp.max(one, wp.sqrt(vx[l] * vx[l] + vy[l] * vy[l] + vz[l] * vz[l]))
             zx = wp.cw_mul(s, vx)
             zy = wp.cw_mul(s, vy)
             zz = wp.cw_mul(s, vz)
-            ox = z[e, 0, b]
-            oy = z[e, 1, b]
-            oz = z[e, 2, b]
-            y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, relaxation * gx + (one - relaxation) * ox - zx)
-            y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, relaxation * gy + (one - relaxation) * oy - zy)
-            y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, relaxation * gz + (one - relaxation) * oz - zz)
+            y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, hx - zx)
+            y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, hy - zy)
+            y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, hz - zz)
             z[e, 0, b] = zx
             z[e, 1, b] = zy
             z[e, 2, b] = zz

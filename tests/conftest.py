@@ -17,7 +17,7 @@ def device(request):
     return request.param
 
 
-TIGHT = dict(eps_abs=1e-7, eps_rel=1e-4)
+TIGHT = dict(eps_abs=1e-7, eps_rel=1e-5, eps_rel_dual=1e-3)
 """ADMM stopping tolerances 50-100x below the defaults. The tests that use them accept
 1e-3 of the maximal distance (or compare at the 1e-4 level on the cylinder and the disk);
 the exact discrete minimizer is reached to ~5e-4 on spot, ~1e-4 on small meshes."""

@@ -91,11 +91,10 @@ def test_distance_zero_on_sources_nonnegative_and_inf_where_unreachable(device):
     assert np.all(d[disk] == np.inf)
 
 
-def test_sources_on_two_components(device):
+def test_sources_on_two_components(device, tight_tolerances):
     V, F, sphere, lonely, disk = _sphere_gap_disk()
     solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
-    with wrd.tolerances.override(eps_abs=1e-6, eps_rel=1e-3):
-        d = solver.solve_many([[0], [0, int(disk[0])], [int(disk[0])]]).distance
+    d = solver.solve_many([[0], [0, int(disk[0])], [int(disk[0])]]).distance
     assert np.all(np.isfinite(d[sphere, 0])) and np.all(d[disk, 0] == np.inf)
     assert np.all(np.isfinite(d[sphere, 1])) and np.all(np.isfinite(d[disk, 1]))
     assert np.all(d[sphere, 2] == np.inf) and np.all(np.isfinite(d[disk, 2]))

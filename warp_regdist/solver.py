@@ -220,7 +220,7 @@ class DistanceSolver:
         out = np.zeros((n, k))
         r_out, s_out = np.zeros(k), np.zeros(k)
         r = s = np.zeros(cols)
-        eps_dual = eps_dual_abs
+        eps_dual = dual_scale = eps_dual_abs
         cg_total = 0
         it = 0
         last_print = t0
@@ -231,8 +231,9 @@ class DistanceSolver:
                 r = np.sqrt(acc[R2])
                 s = rho * np.sqrt(acc[S2])
                 eps_pri = eps_pri_abs + tol.eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
-                eps_dual = eps_dual_abs + tol.eps_rel * np.sqrt(acc[DY2])
-                done = (r < eps_pri) & (s < eps_dual)
+                dual_scale = eps_dual_abs + np.sqrt(acc[DY2])
+                eps_dual = eps_dual_abs + tol.eps_rel_dual * np.sqrt(acc[DY2])
+                done = (r <= eps_pri) & (s <= eps_dual)  # <=: a source-only column has r = s = eps = 0
                 new = np.flatnonzero((iterations < 0) & done)
                 new = new[new < k]
                 if new.size:  # freeze each column at the iterate that met its stopping test
@@ -246,16 +247,11 @@ class DistanceSolver:
                           f"{last_print - t0:.1f} s", file=sys.stderr)
                 if np.all(iterations[:k] >= 0) or it == tol.max_iterations:
                     break
-                # Residual balancing (Boyd 3.4.1) made scale-invariant: r is a length, s an area,
-                # so compare r L with s (the authors' r vs s is this rule at L = 1 only).
-                up = r * L > tol.penalty_ratio * s
-                down = s > tol.penalty_ratio * r * L
-                if up.any() or down.any():
-                    rho = np.where(up, rho * tol.penalty_factor, np.where(down, rho / tol.penalty_factor, rho))
-                    ws["rho"].assign(rho.reshape(nb, W))
+                rho = np.full(cols, L * min(tol.rho_max, tol.rho0 * 2.0 ** (it / tol.rho_doubling)))
+                ws["rho"].assign(rho.reshape(nb, W))
             ws["acc"].zero_()
             u_rhs.launch()
-            cg_atol = tol.cg_fraction * eps_dual / (self.alpha + rho)
+            cg_atol = np.minimum(tol.cg_fraction * dual_scale, 0.1 * eps_dual) / (self.alpha + rho)
             cg_it, _ = ws["pcg"].solve(ws["rhs"], ws["u"], ws["mask"], tol.cg_rtol, tol.cg_max_iterations, cg_atol)
             cg_total += cg_it
             element_step.launch()
