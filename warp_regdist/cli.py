@@ -163,8 +163,9 @@ def _warn(message: str) -> None:
     print(f"{PROG}: warning: {message}", file=sys.stderr)
 
 
-def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str):
-    """Solve once; returns (solver, result), reporting non-convergence on stderr."""
+def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False):
+    """Solve once; returns (solver, result), reporting non-convergence on stderr
+    (and, with ``verbose``, the ADMM's progress every 2 s on stderr)."""
     import warp as wp
 
     from . import ConvergenceWarning, DistanceSolver
@@ -173,7 +174,7 @@ def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str):
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = solver.solve(sources)
+        result = solver.solve(sources, verbose=verbose)
     for w in caught:
         if not issubclass(w.category, ConvergenceWarning):
             _warn(str(w.message))
@@ -222,7 +223,7 @@ def _distance(args: argparse.Namespace) -> None:
         _check_output(args.png, (".png",), "--png")
     mesh = _load(args.mesh)
     sources, described = _parse_sources(args.sources, mesh)
-    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype)
+    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet)
     _write_values(args.output, result.distance)
     written = [args.output]
     if args.png is not None:

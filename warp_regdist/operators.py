@@ -58,11 +58,6 @@ class Operators:
         d = self.basis.shape[1] - 1
         return float(self.total_volume ** (1.0 / d))
 
-    def divergence(self):
-        """D = G^T M_F as an (n, 3m) CSR matrix."""
-        w = np.repeat(self.element_volumes, 3)
-        return (self.grad.T @ sp.diags(w)).tocsr()
-
 
 def element_gradients(vertices, elements):
     """Hat-function gradients and volumes of simplices.
