@@ -36,36 +36,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-
-class DirichletOperators(NamedTuple):
-    """Discrete operators of a triangle mesh (SPEC section 2).
-
-    Attributes
-    ----------
-    grad : (3m, n) scipy.sparse.csr_matrix
-        Gradient G; row 3 f + c is component c of the (constant) gradient on face f.
-    face_areas : (m,) numpy.ndarray
-        a_f.
-    vertex_areas : (n,) numpy.ndarray
-        Lumped (barycentric) areas A_V[i] = (1/3) sum of a_f over the faces at i.
-    stiffness : (n, n) scipy.sparse.csr_matrix
-        Dirichlet (cotangent) stiffness W_D = G^T M_F G, symmetric positive semi-definite.
-    total_area : float
-        A = sum(a_f).
-    """
-
-    grad: sp.csr_matrix
-    face_areas: np.ndarray
-    vertex_areas: np.ndarray
-    stiffness: sp.csr_matrix
-    total_area: float
+import warp_regdist as wrd
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,66 +90,18 @@ RECOMMENDED_RULE = AdmmRule(eps_abs=0.0, eps_rel=2.5e-4, eps_rel_dual=0.15, rho0
                             relax_z=True, penalty="geometric", rho_double_every=30.0, rho_max=8.0)
 
 
-def build_operators(vertices, faces):
-    """Assemble the gradient, areas and Dirichlet stiffness of a triangle mesh.
-
-    On face f = (i, j, k) with area a_f and unit normal N_f, the hat function of vertex i
-    has the constant gradient (N_f x e_i) / (2 a_f), e_i = x_k - x_j (the opposite edge,
-    counter-clockwise).
-
-    Parameters
-    ----------
-    vertices : (n, 3) array_like of float
-    faces : (m, 3) array_like of int
-        Non-degenerate triangles, 0-based vertex indices.
-
-    Returns
-    -------
-    DirichletOperators
-    """
-    V = np.asarray(vertices, dtype=np.float64)
-    F = np.asarray(faces, dtype=np.int64)
-    n, m = len(V), len(F)
-    x0, x1, x2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    normal = np.cross(x1 - x0, x2 - x0)
-    twice_area = np.linalg.norm(normal, axis=1)
-    if np.any(twice_area <= 0.0):
-        raise ValueError(f"expected non-degenerate faces, got {np.count_nonzero(twice_area <= 0.0)} with zero area")
-    unit_normal = normal / twice_area[:, None]
-    opposite = np.stack([x2 - x1, x0 - x2, x1 - x0], axis=1)                # (m, corner, xyz)
-    values = np.cross(unit_normal[:, None, :], opposite) / twice_area[:, None, None]
-    rows = np.broadcast_to(3 * np.arange(m)[:, None, None] + np.arange(3), (m, 3, 3))
-    cols = np.broadcast_to(F[:, :, None], (m, 3, 3))
-    grad = sp.csr_matrix((values.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, n))
-    face_areas = 0.5 * twice_area
-    vertex_areas = np.bincount(F.ravel(), weights=np.repeat(face_areas, 3), minlength=n) / 3.0
-    stiffness = (grad.T @ sp.diags(np.repeat(face_areas, 3)) @ grad).tocsr()
-    return DirichletOperators(grad, face_areas, vertex_areas, stiffness, float(face_areas.sum()))
-
-
 def _check_inputs(vertices, faces, sources, alpha_hat):
-    V = np.asarray(vertices, dtype=np.float64)
-    F = np.asarray(faces)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"expected vertices of shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"expected integer faces of shape (m, 3), got {F.dtype} {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError(f"expected face indices in [0, {len(V)}), got [{F.min()}, {F.max()}]")
+    """The package's mesh validation, plus what an LU of W_ff needs: a source on every component."""
+    mesh = wrd.Mesh(vertices, faces)
     E = np.unique(np.asarray(list(sources), dtype=np.int64))
-    if E.size == 0 or E[0] < 0 or E[-1] >= len(V):
-        raise ValueError(f"expected a non-empty source set within [0, {len(V)}), got {E.tolist()}")
+    if E.size == 0 or E[0] < 0 or E[-1] >= mesh.n_vertices:
+        raise ValueError(f"expected a non-empty source set within [0, {mesh.n_vertices}), got {E.tolist()}")
     if not alpha_hat >= 0.0:
         raise ValueError(f"expected alpha_hat >= 0, got {alpha_hat}")
-    n_unreferenced = len(V) - np.unique(F).size
-    if n_unreferenced:
-        raise ValueError(f"expected every vertex to belong to a face, got {n_unreferenced} unreferenced")
-    adjacency = sp.coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(len(V),) * 2)
-    _, label = connected_components(adjacency, directed=False)
-    n_sourceless = label.max() + 1 - np.unique(label[E]).size
-    if n_sourceless:
-        raise ValueError(f"expected a source on every connected component, got {n_sourceless} without one")
-    return V, F.astype(np.int64), E
+    labels = mesh.components()
+    if np.any(labels < 0) or not np.isin(labels, labels[E]).all():
+        raise ValueError("expected every vertex on a face and a source on every connected component")
+    return mesh, E
 
 
 def _project_unit_ball(x):
@@ -228,25 +156,25 @@ def solve_admm(vertices, faces, sources, alpha_hat=0.05, *, rule=RECOMMENDED_RUL
     if rule.penalty not in ("balance", "geometric"):
         raise ValueError(f"expected penalty 'balance' or 'geometric', got {rule.penalty!r}")
     t_start = time.perf_counter()
-    V, F, E = _check_inputs(vertices, faces, sources, alpha_hat)
-    ops = build_operators(V, F)
-    n, m = len(V), len(F)
+    mesh, E = _check_inputs(vertices, faces, sources, alpha_hat)
+    ops = wrd.build_operators(mesh)
+    n, m = mesh.n_vertices, mesh.n_elements
     free = np.setdiff1d(np.arange(n), E)
     G = ops.grad[:, free].tocsr()
-    mass_faces = np.repeat(ops.face_areas, 3)
+    mass_faces = np.repeat(ops.element_volumes, 3)
     sqrt_mass = np.sqrt(mass_faces)
     D = (G.T @ sp.diags(mass_faces)).tocsr()
-    load = ops.vertex_areas[free]
+    load = ops.vertex_volumes[free]
     stiffness_free = ops.stiffness[free][:, free].tocsc()
     lu = splu(stiffness_free, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
     setup_seconds = time.perf_counter() - t_start
 
-    length = np.sqrt(ops.total_area)
+    length = np.sqrt(ops.total_volume)
     alpha = alpha_hat * length
     a = rule.relax
     eps_rel_dual = rule.eps_rel if rule.eps_rel_dual is None else rule.eps_rel_dual
     abs_pri = np.sqrt(3 * m) * rule.eps_abs * length
-    abs_dual = np.sqrt(n) * rule.eps_abs * ops.total_area
+    abs_dual = np.sqrt(n) * rule.eps_abs * ops.total_volume
     rho = rule.rho0 * length
     u = np.zeros(free.size)
     z = np.zeros(3 * m)
