@@ -140,3 +140,23 @@ def test_invalid_preconditioner(spot_stiffness):
     with pytest.raises(ValueError, match="expected a multigrid hierarchy for 4764 unknowns"):
         small = smoothed_aggregation(spot_stiffness[:300, :300])
         BatchedPCG(spot_stiffness, wp.float64, 1, 1, "cpu", preconditioner=small)
+
+
+def test_set_matrix_solves_the_new_matrix(spot_stiffness, spot_hierarchy, device):
+    """A shifted matrix K + c M (same pattern) set in place: the solve is of the new matrix."""
+    import scipy.sparse as sp
+
+    mask, b = _problem(spot_stiffness, 4, seed=5)
+    shifted = (spot_stiffness + sp.diags(np.linspace(1.0, 3.0, spot_stiffness.shape[0]))).tocsr()
+    pcg = BatchedPCG(spot_stiffness, wp.float64, 4, 1, device, preconditioner=spot_hierarchy)
+    wb, wm = _lanes(b, "float64", device), _lanes(mask, "float64", device)
+    x = wp.zeros((spot_stiffness.shape[0], 1), dtype=lane_type(wp.float64, 4), device=device)
+    pcg.solve(wb, x, wm, 1e-11, 500)  # records the launches with the old values
+    pcg.set_matrix(shifted)
+    x.zero_()
+    _, rel = pcg.solve(wb, x, wm, 1e-11, 500)
+    assert np.all(rel <= 1e-11)
+    ref = _direct(shifted, mask, b)
+    assert np.abs(x.numpy().reshape(-1, 4) - ref).max() <= 1e-8 * np.abs(ref).max()
+    with pytest.raises(ValueError, match="expected a \\(4764, 4764\\) matrix with the solver's sparsity pattern"):
+        pcg.set_matrix(sp.eye(4764))

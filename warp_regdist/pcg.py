@@ -132,8 +132,8 @@ class BatchedPCG:
         V = self.kernels.V
         self.width = width
         self.offsets, self.columns, self.values = _csr_arrays(K, scalar, device)
-        diag = K.diagonal()
-        self.dinv = wp.array(np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0), dtype=scalar, device=device)
+        self._pattern = (K.indptr.copy(), K.indices.copy())
+        self.dinv = wp.array(self._inverse_diagonal(K), dtype=scalar, device=device)
         shape = (self.n, blocks)
         self.r, self.z, self.p, self.q = (wp.zeros(shape, dtype=V, device=device) for _ in range(4))
         self.acc = wp.zeros((3, 4, blocks), dtype=V, device=device)
@@ -152,6 +152,27 @@ class BatchedPCG:
             self.vcycle = None
         else:
             raise ValueError(f"expected preconditioner 'multigrid', 'jacobi' or a Hierarchy, got {preconditioner!r}")
+
+    def set_matrix(self, matrix):
+        """Replace K by ``matrix`` of the same sparsity pattern (a new penalty, a new shift).
+
+        The arrays are updated in place, so recorded launches stay valid; the
+        preconditioner is kept (it only needs to stay spectrally close to K: build a new
+        solver with ``smoothed_aggregation(matrix)`` when K changes by more than a scaling).
+        """
+        K = sp.csr_matrix(matrix)
+        K.sort_indices()
+        if K.shape != (self.n, self.n) or not (np.array_equal(K.indptr, self._pattern[0])
+                                                and np.array_equal(K.indices, self._pattern[1])):
+            raise ValueError(f"expected a ({self.n}, {self.n}) matrix with the solver's sparsity pattern, "
+                             f"got shape {K.shape} with {K.nnz} nonzeros")
+        self.values.assign(K.data.astype(self.values.numpy().dtype, copy=False))
+        self.dinv.assign(self._inverse_diagonal(K))
+
+    @staticmethod
+    def _inverse_diagonal(K):
+        diag = K.diagonal()
+        return np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
 
     def _commands(self, rhs, x, mask):
         """Recorded launches (init, matvec[slot], update[slot], direction[slot]) for these arrays."""
