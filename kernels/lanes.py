@@ -1,12 +1,11 @@
 """Lane vector types and launch geometry shared by the kernel families."""
 
-from __future__ import annotations
-
 import functools
+import types
 
 import warp as wp
 
-__all__ = ["lane_type", "lane_width", "chunk_size", "SCALARS"]
+__all__ = ["lane_type", "lane_width", "chunk_size", "lane_kernels", "SCALARS"]
 
 SCALARS = {"float32": wp.float32, "float64": wp.float64}
 
@@ -31,3 +30,26 @@ def lane_type(scalar, width):
 def chunk_size(device):
     """Rows per thread: long chunks on the CPU (one core runs the launch), one row on CUDA."""
     return 1 if wp.get_device(device).is_cuda else 128
+
+
+@functools.cache
+def lane_kernels(scalar, W):
+    """Kernels that rearrange columns stored as lanes of W ``scalar`` values."""
+    V = lane_type(scalar, W)
+    module = wp.get_module(f"warp_regdist_lanes_{scalar.__name__}_{W}")
+
+    @wp.kernel(enable_backward=False, module=module)
+    def move_columns(a: wp.array2d(dtype=V), src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32),
+                     count: int, chunk: int, rows: int):
+        """Column dst[t] = column src[t] for t < count, in every row; column j is lane j % W of block j // W.
+        The sources and destinations must be disjoint sets of columns."""
+        c = wp.tid()
+        for i in range(c * chunk, wp.min(c * chunk + chunk, rows)):
+            for t in range(count):
+                s = src[t]
+                d = dst[t]
+                v = a[i, d // W]
+                v[d % W] = a[i, s // W][s % W]
+                a[i, d // W] = v
+
+    return types.SimpleNamespace(move_columns=move_columns)

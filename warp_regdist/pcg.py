@@ -92,6 +92,11 @@ class _VCycle:
                                           self.sizes[0]]))
         return launches
 
+    def set_active_blocks(self, blocks):
+        """Apply to column blocks 0..blocks-1 only (launches are recorded again)."""
+        self.blocks = blocks
+        self.mask = None
+
     def apply(self, mask, r, z, acc, slot):
         """z = mask M_0 r for (n, nb) lane vectors r (zero where mask is 0); acc[slot, RZ] += r.z.
 
@@ -138,7 +143,9 @@ class BatchedPCG:
         self.r, self.z, self.p, self.q = (wp.zeros(shape, dtype=V, device=device) for _ in range(4))
         self.acc = wp.zeros((3, 4, blocks), dtype=V, device=device)
         self.tol2 = wp.zeros(blocks, dtype=V, device=device)
+        self._tol2_host = np.zeros(blocks * width)
         self.chunk = chunk_size(device)
+        self.blocks = blocks
         self.dim = ((self.n + self.chunk - 1) // self.chunk, blocks)
         self.scalar = scalar
         self._recorded = {}
@@ -174,6 +181,16 @@ class BatchedPCG:
         diag = K.diagonal()
         return np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
 
+    def set_active_blocks(self, blocks):
+        """Solve only column blocks 0..blocks-1 from now on (a batch whose other columns are done)."""
+        if not 1 <= blocks <= self.tol2.shape[0]:
+            raise ValueError(f"expected 1 <= active blocks <= {self.tol2.shape[0]}, got {blocks}")
+        self.blocks = blocks
+        self.dim = (self.dim[0], blocks)
+        self._recorded = {}
+        if self.vcycle is not None:
+            self.vcycle.set_active_blocks(blocks)
+
     def _commands(self, rhs, x, mask):
         """Recorded launches (init, matvec[slot], update[slot], direction[slot]) for these arrays."""
         key = (rhs.ptr, x.ptr, mask.ptr)
@@ -198,7 +215,7 @@ class BatchedPCG:
         return self._recorded[key]
 
     def _accumulators(self):
-        return self.acc.numpy().reshape(3, 4, -1)
+        return self.acc.numpy().reshape(3, 4, -1)[:, :, :self.blocks * self.width]
 
     def solve(self, rhs, x, mask, rtol, max_iterations, atol=0.0):
         """Run PCG until |b - K x| <= max(rtol |b|, atol) in every lane or ``max_iterations``.
@@ -210,20 +227,22 @@ class BatchedPCG:
             solution), free-unknown mask (1 free, 0 fixed).
         rtol : float
         max_iterations : int
-        atol : float or (nb * width,) ndarray
-            Absolute residual tolerance per lane.
+        atol : float or (blocks * width,) ndarray
+            Absolute residual tolerance per lane of the active blocks.
 
         Returns
         -------
         iterations : int
-        relative_residual : (nb * width,) ndarray, |r| / |b| per lane (0 where b = 0).
+        relative_residual : (blocks * width,) ndarray, |r| / |b| per lane of the active blocks
+            (0 where b = 0).
         """
         init, matvec, update, direction = self._commands(rhs, x, mask)
         self.acc.zero_()
         init.launch()
         acc = self._accumulators()
         tol2 = np.maximum(rtol * rtol * acc[0, BB], np.square(atol))
-        self.tol2.assign(tol2.reshape(self.tol2.shape + (self.width,)))
+        self._tol2_host[:tol2.size] = tol2
+        self.tol2.assign(self._tol2_host.reshape(self.tol2.shape + (self.width,)))
         it = 0
         slot = 0
         if self.vcycle is not None and not np.all(acc[slot, RR] <= tol2):
