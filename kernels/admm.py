@@ -123,15 +123,16 @@ def admm_kernels(scalar, W, k):
 
     @wp.kernel(enable_backward=False, module=module)
     def u_rhs(vertex_vol: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), Dy: wp.array2d(dtype=V),
-              Dz: wp.array2d(dtype=V), rho: wp.array(dtype=V), alpha: scalar, rhs: wp.array2d(dtype=V),
-              chunk: int, n: int):
-        """Right-hand side of the u-step scaled to the stiffness matrix W_D:
-            rhs = mask (A_V - D y + rho D z) / (alpha + rho)."""
+              Dz: wp.array2d(dtype=V), rho: wp.array(dtype=V), shift: scalar, scale: scalar,
+              rhs: wp.array2d(dtype=V), chunk: int, n: int):
+        """Right-hand side of the u-step, divided by the factor of its matrix:
+            rhs = mask (A_V - D y + rho D z) / (shift + scale rho)
+        (shift = alpha, scale = 1 for the Dirichlet matrix (alpha + rho) W_D; 1, 0 otherwise)."""
         c, b = wp.tid()
         rb = rho[b]
         den = V()
         for l in range(W):
-            den[l] = alpha + rb[l]
+            den[l] = shift + scale * rb[l]
         for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
             num = vertex_vol[i] * V(one) - Dy[i, b] + wp.cw_mul(rb, Dz[i, b])
             rhs[i, b] = wp.cw_mul(mask[i, b], wp.cw_div(num, den))

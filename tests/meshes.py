@@ -153,3 +153,99 @@ def perturbed(V, F, amplitude, seed=0):
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     rng = np.random.default_rng(seed)
     return V + amplitude * rng.uniform(-1.0, 1.0, size=(len(V), 1)) * normals
+
+
+def cube_tets(n, size=1.0):
+    """Cube [0, size]^3 cut into n^3 grid cells of 6 tetrahedra each (Kuhn / Freudenthal).
+
+    Every cell is split along its diagonal (0, 0, 0) -> (1, 1, 1): one tetrahedron per
+    order in which the path to the opposite corner takes the three axis steps. All cells
+    use the same diagonal, so the tetrahedra of neighbouring cells share their faces
+    (a conforming mesh), and all are congruent, of volume size^3 / (6 n^3).
+
+    Returns
+    -------
+    V : ((n + 1)^3, 3) float64
+        Vertex ``(i (n + 1) + j) (n + 1) + k`` is size (i, j, k) / n.
+    T : (6 n^3, 4) int64
+        Positively oriented: det(v1 - v0, v2 - v0, v3 - v0) > 0.
+    """
+    x = size * np.arange(n + 1) / n
+    V = np.stack(np.meshgrid(x, x, x, indexing="ij"), axis=-1).reshape(-1, 3)
+    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
+    corner = idx[:-1, :-1, :-1].ravel()
+    stride = np.array([(n + 1) ** 2, n + 1, 1])
+    tets = []
+    for perm, sign in (((0, 1, 2), 1), ((1, 2, 0), 1), ((2, 0, 1), 1),
+                       ((0, 2, 1), -1), ((2, 1, 0), -1), ((1, 0, 2), -1)):
+        steps = np.cumsum(stride[list(perm)])
+        t = np.stack([corner, corner + steps[0], corner + steps[1], corner + steps[2]], axis=1)
+        tets.append(t if sign > 0 else t[:, [0, 2, 1, 3]])
+    return V, np.concatenate(tets).astype(np.int64)
+
+
+def ball_tets(subdivisions, n_shells, radius=1.0):
+    """Solid ball of concentric icosphere shells joined by prisms, each cut into 3 tetrahedra.
+
+    Shell j = 1 .. n_shells is the icosphere of `icosphere(subdivisions)` scaled to radius
+    ``radius j / n_shells``; the centre is joined to the innermost shell by one
+    tetrahedron per triangle. A prism between the triangle (a, b, c) of shell j and the
+    same triangle of shell j + 1 (primed) is cut, with the corners sorted p < q < r by
+    icosphere index, into (p, q, r, r'), (p, q, q', r'), (p, p', q', r'): each side quad
+    is split along the diagonal from its lower-index bottom corner to its higher-index top
+    corner, the same choice in both prisms that share it, so the mesh is conforming.
+    Mesh edges run along the rays, so a radial function is interpolated without the
+    tangential gradient error of a distorted cube grid.
+
+    Returns
+    -------
+    V : (1 + n_shells k, 3) float64
+        Vertex 0 is the centre, then shell 1, shell 2, ... (k icosphere vertices each);
+        the last shell (the boundary) lies exactly on the sphere of the given radius.
+    T : (f (3 n_shells - 2), 4) int64
+        f icosphere triangles; positively oriented.
+    """
+    S, F = icosphere(subdivisions, 1.0)
+    k = len(S)
+    r = radius * np.arange(1, n_shells + 1) / n_shells
+    V = np.concatenate([np.zeros((1, 3)), (r[:, None, None] * S[None]).reshape(-1, 3)])
+    tets = [np.concatenate([np.zeros((len(F), 1), np.int64), 1 + F], axis=1)]
+    p, q, s = np.sort(F, axis=1).T
+    for j in range(n_shells - 1):
+        lo, hi = 1 + j * k, 1 + (j + 1) * k
+        tets += [np.stack([lo + p, lo + q, lo + s, hi + s], axis=1),
+                 np.stack([lo + p, lo + q, hi + q, hi + s], axis=1),
+                 np.stack([lo + p, hi + p, hi + q, hi + s], axis=1)]
+    T = np.concatenate(tets).astype(np.int64)
+    flip = tet_volumes(V, T) < 0
+    T[flip] = T[flip][:, [0, 2, 1, 3]]
+    return V, T
+
+
+def tet_volumes(V, T):
+    """Signed volumes det(v1 - v0, v2 - v0, v3 - v0) / 6 of tetrahedra, shape (m,)."""
+    P = V[T]
+    return np.linalg.det(P[:, 1:] - P[:, :1]) / 6.0
+
+
+def square_with_hole(n, size=1.0, hole=0.4):
+    """`square_grid(n, size)` with the faces in the central square of side ``hole * size`` removed.
+
+    A face is removed when its centroid lies in the open square |x - size/2| < hole size / 2,
+    |y - size/2| < hole size / 2; vertices no longer referenced are dropped.
+
+    Returns
+    -------
+    V : (k, 3) float64
+    F : (m', 3) int64
+        Counter-clockwise seen from +z; the hole's rim is a second boundary loop.
+    kept : (k,) int64
+        Index in `square_grid(n, size)` of every vertex (to compare functions on both meshes).
+    """
+    V, F = square_grid(n, size)
+    c = V[F].mean(axis=1) - 0.5 * size
+    F = F[np.max(np.abs(c[:, :2]), axis=1) >= 0.5 * hole * size]
+    kept = np.unique(F)
+    index = np.full(len(V), -1, dtype=np.int64)
+    index[kept] = np.arange(len(kept))
+    return V[kept], index[F], kept

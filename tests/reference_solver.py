@@ -14,21 +14,47 @@ import numpy as np
 import scipy.sparse as sp
 
 
-def face_geometry(V, F):
-    """Face areas and unit normals.
+def tet_geometry(V, T):
+    """Tetrahedron volumes and hat-function gradients from the affine map's inverse.
+
+    The barycentric coordinates lambda of x in tetrahedron (v0, v1, v2, v3) solve
+    P lambda = (1, x) with the 4 x 4 matrix P = [[1, 1, 1, 1], [v0, v1, v2, v3]], so
+    grad lambda_k = (P^-1)[k, 1:4].
 
     Parameters
     ----------
     V : (n, 3) float64
-    F : (m, 3) int64
+    T : (m, 4) int64
+
+    Returns
+    -------
+    volumes : (m,) float64
+        |det P| / 6.
+    grads : (m, 4, 3) float64
+        grads[t, k] = gradient of the hat function of corner k of tetrahedron t.
+    """
+    P = np.ones((len(T), 4, 4))
+    P[:, 1:, :] = np.transpose(V[T], (0, 2, 1))
+    return np.abs(np.linalg.det(P)) / 6.0, np.linalg.inv(P)[:, :, 1:]
+
+
+def face_geometry(V, F):
+    """Face areas and unit normals (tetrahedra: volumes, and None for the normals).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) or (m, 4) int64
 
     Returns
     -------
     areas : (m,) float64
-        a_f = |(v1 - v0) x (v2 - v0)| / 2.
-    normals : (m, 3) float64
+        a_f = |(v1 - v0) x (v2 - v0)| / 2 (tetrahedra: the volumes of `tet_geometry`).
+    normals : (m, 3) float64 or None
         N_f = (v1 - v0) x (v2 - v0) / (2 a_f).
     """
+    if F.shape[1] == 4:
+        return tet_geometry(V, F)[0], None
     c = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     double = np.linalg.norm(c, axis=1)
     return 0.5 * double, c / double[:, None]
@@ -46,28 +72,32 @@ def gradient_matrices(V, F):
         ``G[c] @ u`` is component c of the gradient of u on every face.
     """
     n, m = len(V), len(F)
-    areas, normals = face_geometry(V, F)
-    rows = np.repeat(np.arange(m), 3)
+    rows = np.repeat(np.arange(m), F.shape[1])
     cols = F.ravel()
-    grads = np.empty((m, 3, 3))
-    for k in range(3):
-        e = V[F[:, (k + 2) % 3]] - V[F[:, (k + 1) % 3]]
-        grads[:, k, :] = np.cross(normals, e) / (2.0 * areas[:, None])
+    if F.shape[1] == 4:  # tetrahedra: see tet_geometry
+        grads = tet_geometry(V, F)[1]
+    else:
+        areas, normals = face_geometry(V, F)
+        grads = np.empty((m, 3, 3))
+        for k in range(3):
+            e = V[F[:, (k + 2) % 3]] - V[F[:, (k + 1) % 3]]
+            grads[:, k, :] = np.cross(normals, e) / (2.0 * areas[:, None])
     return [
         sp.csr_matrix((grads[:, :, c].ravel(), (rows, cols)), shape=(m, n)) for c in range(3)
     ]
 
 
 def vertex_areas(V, F):
-    """Barycentric lumped vertex areas A_V[i] = (1/3) sum of a_f over faces at i, shape (n,)."""
+    """Barycentric lumped vertex areas A_V[i] = (1/3) sum of a_f over faces at i, shape (n,);
+    for tetrahedra (1/4) of the adjacent volumes."""
     areas, _ = face_geometry(V, F)
     A_V = np.zeros(len(V))
-    for k in range(3):
-        np.add.at(A_V, F[:, k], areas / 3.0)
+    for k in range(F.shape[1]):
+        np.add.at(A_V, F[:, k], areas / F.shape[1])
     return A_V
 
 
-def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8):
+def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
     """Exact minimizer of the discrete Dirichlet-regularized distance problem.
 
     Parameters
@@ -84,6 +114,11 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8):
         Clarabel's absolute and relative duality-gap tolerance.
     feas_tol : float
         Clarabel's feasibility tolerance (much below 1e-8 it stalls at "almost solved").
+    W : (n, n) array_like or None
+        Another quadratic regularizer (symmetric PSD) in place of the Dirichlet energy:
+        the objective becomes -A_V^T u + (alpha / 2) u^T W u, written as |R u|^2 with
+        R = diag(sqrt(lambda)) Q^T from the dense eigendecomposition W = Q diag(lambda) Q^T
+        (eigenvalues below 0, round-off, clipped to 0; for a few hundred vertices).
 
     Returns
     -------
@@ -97,7 +132,11 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8):
     u = cp.Variable(n)
     g = cp.vstack([Gx @ u, Gy @ u, Gz @ u])  # (3, m)
     objective = -A_V @ u
-    if alpha > 0:
+    if alpha > 0 and W is not None:
+        lam, Q = np.linalg.eigh(np.asarray(W.todense() if hasattr(W, "todense") else W))
+        R = np.sqrt(np.maximum(lam, 0.0))[:, None] * Q.T
+        objective = objective + 0.5 * alpha * cp.sum_squares(R @ u)
+    elif alpha > 0:
         w = np.sqrt(areas)
         energy = (
             cp.sum_squares(cp.multiply(w, Gx @ u))

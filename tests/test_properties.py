@@ -115,3 +115,19 @@ def test_not_converged_warns(device):
     assert not res.converged
     assert res.iterations == 2
     assert issubclass(wrd.ConvergenceWarning, OptimizeWarning)
+
+
+def test_batch_columns_match_single_solves_across_blocks(device):
+    """11 columns = 2 lane blocks: columns that finish early are frozen and the running
+    ones are moved into the freed lanes (the emptied block is dropped); every column must
+    still take the same iterations and reach the same distance as its single solve."""
+    V, F = _bumpy_sphere()
+    rng = np.random.default_rng(7)
+    sets = [[int(i)] for i in rng.choice(len(V), size=10, replace=False)] + [[0, 1, 2]]
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
+    many = solver.solve_many(sets)
+    assert len(set(many.iterations.tolist())) > 3  # columns stop at different iterations
+    for k, s in enumerate(sets):
+        res = solver.solve(s)
+        assert many.iterations[k] == res.iterations, k
+        assert _rel(many.distance[:, k], res.distance) <= 1e-12, k

@@ -2,12 +2,18 @@
 
 For each source set E the solver returns the minimizer of
 
-    minimize_u  -A_V^T u + (alpha / 2) u^T W_D u
+    minimize_u  -A_V^T u + (alpha / 2) u^T W u
     subject to  |(G u)_e| <= 1 on every element e,   u_i = 0 for i in E,
 
-with alpha = alpha_hat * A^(1/d) (A the total area, or volume for d = 3), so that
-alpha_hat is scale-invariant. Many source sets are solved as one batched ADMM whose
-per-element, per-vertex and linear-solve steps are Warp kernels over (rows x columns).
+with the regularizer W = W_D (Dirichlet), W_V (vector-field alignment) or W_H (curved
+Hessian) and alpha = alpha_hat * A^(1/d) (A the total area, or volume for d = 3;
+A^(3/2) for the Hessian), so that alpha_hat is scale-invariant (warp_regdist/regularizers.py).
+Many source sets are solved as one batched ADMM whose per-element, per-vertex and
+linear-solve steps are Warp kernels over (rows x columns). The u-step matrix is
+alpha W + rho W_D: for Dirichlet the rescaled (alpha + rho) W_D (only the right-hand side
+is divided by alpha + rho), otherwise its values are replaced in the PCG whenever rho changes;
+the multigrid preconditioner of W_D serves all three (measured: 3-8 CG iterations per ADMM
+iteration for W_V, 8-35 for W_H, where a hierarchy built for alpha W_H + rho W_D saved < 25%).
 """
 
 from __future__ import annotations
@@ -22,11 +28,12 @@ import warp as wp
 from scipy.optimize import OptimizeResult, OptimizeWarning
 
 from .kernels.admm import DY2, GU2, R2, S2, Z2, admm_kernels
-from .kernels.lanes import SCALARS, chunk_size, lane_type, lane_width
+from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
+from .regularizers import build_regularizer
 from .tolerances import tolerances
 
 __all__ = ["DistanceSolver", "DistanceResult", "ConvergenceWarning"]
@@ -56,12 +63,24 @@ class DistanceResult(OptimizeResult):
     """
 
 
-def _parse_device(device):
+def parse_device(device):
+    """The Warp device named ``device`` (None: Warp's default); ValueError naming the available ones."""
     try:
         return wp.get_device(device)
     except Exception:
         names = [str(d) for d in wp.get_devices()]
         raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
+
+
+def check_alpha_hat(alpha_hat):
+    """``alpha_hat`` as a float; ValueError unless it is a finite real >= 0."""
+    try:
+        alpha_hat = float(alpha_hat)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected a real alpha_hat >= 0, got {alpha_hat!r}") from None
+    if not math.isfinite(alpha_hat) or alpha_hat < 0:
+        raise ValueError(f"expected a finite alpha_hat >= 0, got {alpha_hat!r}")
+    return alpha_hat
 
 
 class DistanceSolver:
@@ -73,6 +92,15 @@ class DistanceSolver:
         Triangle or tetrahedral mesh.
     alpha_hat : float
         Scale-invariant regularization weight >= 0 (0: the discrete geodesic distance).
+    regularizer : {"dirichlet", "vector_field", "hessian"}
+        The quadratic regularizer W (SPEC section 3). "hessian" needs a triangle mesh and
+        stops at tolerances / 20.
+    beta_hat : float or None
+        Alignment weight >= 0 of "vector_field" (default 10; scale-invariant).
+    vector_field : (m, 3) array_like or None
+        Per-element field of "vector_field": the isolines turn to follow it (its length
+        scales the alignment; see :func:`warp_regdist.line_field` to build one from a few
+        directions).
     device : str or None
         Warp device ("cpu", "cuda", "cuda:0"); None: Warp's default device.
     dtype : {"float64", "float32"}
@@ -84,25 +112,22 @@ class DistanceSolver:
     >>> u = solver.solve([2272]).distance
     """
 
-    def __init__(self, mesh, alpha_hat=0.05, device=None, dtype="float64"):
+    def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
+                 device=None, dtype="float64"):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
-        try:
-            alpha_hat = float(alpha_hat)
-        except (TypeError, ValueError):
-            raise ValueError(f"expected a real alpha_hat >= 0, got {alpha_hat!r}") from None
-        if not math.isfinite(alpha_hat) or alpha_hat < 0:
-            raise ValueError(f"expected a finite alpha_hat >= 0, got {alpha_hat!r}")
+        alpha_hat = check_alpha_hat(alpha_hat)
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
         wp.init()
-        self.device = _parse_device(device)
+        self.device = parse_device(device)
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
         self.operators = ops = build_operators(mesh)
-        self.alpha = alpha_hat * ops.length_scale
+        self.regularizer = build_regularizer(mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
+        self.alpha = self.regularizer.alpha
         self._labels = mesh.components()
         sc, dev = self.scalar, self.device
         T = mesh.elements
@@ -115,6 +140,7 @@ class DistanceSolver:
         self._incident = wp.array(inc.astype(np.int32), dtype=wp.int32, device=dev)
         self._pair_weights = wp.array(ops.element_volumes[inc, None] * ops.basis[inc, loc],
                                       dtype=wp.types.vector(3, sc), device=dev)
+        self._scaled = self.regularizer.weights is None  # Dirichlet: u-step matrix (alpha + rho) W_D
         self._hierarchy = smoothed_aggregation(ops.stiffness)
         self._workspaces = {}
 
@@ -171,7 +197,8 @@ class DistanceSolver:
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 dz=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
-                pcg=BatchedPCG(self.operators.stiffness, self.scalar, W, nb, dev, preconditioner=self._hierarchy),
+                pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
+                               self.scalar, W, nb, dev, preconditioner=self._hierarchy),
             )
             self._workspaces = {key: ws}  # keep one workspace: memory scales with the batch
         return self._workspaces[key]
@@ -179,94 +206,177 @@ class DistanceSolver:
     def _admm(self, sets, verbose):
         t0 = time.perf_counter()
         tol = tolerances
+        factor = self.regularizer.tolerance_factor
         k = len(sets)
         n, m = self.mesh.n_vertices, self.mesh.n_elements
         W = lane_width(self.scalar, k)
         nb = -(-k // W)
-        cols = nb * W
         ws = self._workspace(W, nb)
-        kern = admm_kernels(self.scalar, W, self.mesh.elements.shape[1])
-        dev, chunk = self.device, chunk_size(self.device)
+        # u-step right-hand side divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
+        shift, scale = (self.alpha, 1.0) if self._scaled else (1.0, 0.0)
+        batch = _ColumnBatch(self, ws, W, nb, shift, scale)
 
-        free = np.zeros((n, cols))
-        for j in range(cols):
-            src, reach = sets[j] if j < k else sets[0]
+        # Slot j (lane j % W of block j // W) holds column slot_col[j] of the batch, -1 when it is
+        # free: padding, or a column already frozen at convergence (its lane still computes).
+        slot_col = np.where(np.arange(nb * W) < k, np.arange(nb * W), -1)
+        free = np.zeros((n, nb * W))
+        for j in range(nb * W):
+            src, reach = sets[min(j, k - 1)]
             free[:, j] = reach
             free[src, j] = 0.0
-        n_free = np.maximum(free.sum(axis=0), 1.0)
         ws["mask"].assign(free.reshape(n, nb, W))
         for name in ("u", "z", "y", "dz", "Dy", "Dz"):
             ws[name].zero_()
         L = self.operators.length_scale
         A = self.operators.total_volume
-        rho = np.full(cols, tol.rho0 * L)
-        ws["rho"].assign(rho.reshape(nb, W))
+        rho0, rho_max = (f * t for f, t in zip(self.regularizer.rho_factors, (tol.rho0, tol.rho_max)))
+        rho = rho0 * L
+        ws["rho"].assign(np.full((nb, W), rho))
 
-        eps_pri_abs = math.sqrt(3 * m) * tol.eps_abs * math.sqrt(A)
-        eps_dual_abs = np.sqrt(n_free) * tol.eps_abs * A
-        elem_dim = ((m + chunk - 1) // chunk, nb)
-        vert_dim = ((n + chunk - 1) // chunk, nb)
-        sc = self.scalar
-        # Recorded launches: the arguments are fixed for the whole solve (rho lives in a device array).
-        divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
-            self._vertex_offsets, self._incident, self._pair_weights, ws["mask"], ws["y"], ws["z"], ws["dz"],
-            ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
-        u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
-            self._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.alpha), ws["rhs"], chunk, n])
-        element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
-            self._elements, self._basis, self._volumes, ws["u"], ws["rho"], sc(tol.relaxation),
-            ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m])
-        iterations = np.full(cols, -1)
+        eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
+        eps_pri_abs = math.sqrt(3 * m) * eps_abs * math.sqrt(A)
+        # per slot: (eps_abs sqrt(n_free) A, |mask A_V|), the latter the floor of the dual scale
+        # |mask D y| where y may vanish (see Regularizer.dual_floor)
+        slot_values = np.stack([np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A,
+                                np.sqrt(np.square(self.operators.vertex_volumes) @ free) * self.regularizer.dual_floor])
+        eps_dual_abs, force = slot_values
+
+        iterations = np.full(k, -1)
         out = np.zeros((n, k))
         r_out, s_out = np.zeros(k), np.zeros(k)
-        r = s = np.zeros(cols)
-        eps_dual = dual_scale = eps_dual_abs
+        live = nb * W
+        r = s = np.zeros(live)
+        eps_dual, dual_scale = eps_dual_abs + eps_rel_dual * force, eps_dual_abs + force
         cg_total = 0
+        system_rho = None
         it = 0
         last_print = t0
         for it in range(tol.max_iterations + 1):
-            divergence.launch()
+            batch.divergence.launch()
             if it > 0:
-                acc = ws["acc"].numpy().reshape(5, cols)
+                acc = ws["acc"].numpy().reshape(5, -1)[:, :live]
                 r = np.sqrt(acc[R2])
                 s = rho * np.sqrt(acc[S2])
-                eps_pri = eps_pri_abs + tol.eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
-                dual_scale = eps_dual_abs + np.sqrt(acc[DY2])
-                eps_dual = eps_dual_abs + tol.eps_rel_dual * np.sqrt(acc[DY2])
+                eps_pri = eps_pri_abs + eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
+                dy = np.maximum(np.sqrt(acc[DY2]), force[:live])
+                dual_scale = eps_dual_abs[:live] + dy
+                eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
                 done = (r <= eps_pri) & (s <= eps_dual)  # <=: a source-only column has r = s = eps = 0
-                new = np.flatnonzero((iterations < 0) & done)
-                new = new[new < k]
+                new = np.flatnonzero(done & (slot_col[:live] >= 0))
                 if new.size:  # freeze each column at the iterate that met its stopping test
-                    iterations[new] = it
-                    out[:, new] = ws["u"].numpy().reshape(n, cols)[:, new]
-                    r_out[new], s_out[new] = r[new], s[new]
+                    cols = slot_col[new]
+                    iterations[cols] = it
+                    out[:, cols] = ws["u"].numpy().reshape(n, -1)[:, new]
+                    r_out[cols], s_out[cols] = r[new], s[new]
+                    slot_col[new] = -1
                 if verbose and (time.perf_counter() - last_print > 2.0):
                     last_print = time.perf_counter()
-                    print(f"  ADMM iteration {it}: {np.count_nonzero(iterations[:k] >= 0)}/{k} converged, "
-                          f"max r/eps_pri {np.max(r / eps_pri):.3g}, max s/eps_dual {np.max(s / eps_dual):.3g}, "
+                    print(f"  ADMM iteration {it}: {np.count_nonzero(iterations >= 0)}/{k} converged, "
+                          f"max r/eps_pri {_max_ratio(r, eps_pri):.3g}, max s/eps_dual {_max_ratio(s, eps_dual):.3g}, "
                           f"{last_print - t0:.1f} s", file=sys.stderr)
-                if np.all(iterations[:k] >= 0) or it == tol.max_iterations:
+                if np.all(iterations >= 0) or it == tol.max_iterations:
                     break
-                rho = np.full(cols, L * min(tol.rho_max, tol.rho0 * 2.0 ** (it / tol.rho_doubling)))
-                ws["rho"].assign(rho.reshape(nb, W))
+                if new.size:
+                    live = batch.compact(slot_col, slot_values)
+                    r, s, eps_dual, dual_scale = r[:live], s[:live], eps_dual[:live], dual_scale[:live]
+                rho = L * min(rho_max, rho0 * 2.0 ** (it / tol.rho_doubling))
+                ws["rho"].assign(np.full((nb, W), rho))
+            if not self._scaled and rho != system_rho:
+                system_rho = rho
+                ws["pcg"].set_matrix(self.regularizer.system(rho))
             ws["acc"].zero_()
-            u_rhs.launch()
-            cg_atol = np.minimum(tol.cg_fraction * dual_scale, 0.1 * eps_dual) / (self.alpha + rho)
+            batch.u_rhs.launch()
+            cg_atol = np.minimum(factor * tol.cg_fraction * dual_scale, 0.1 * eps_dual) / (shift + scale * rho)
             cg_it, _ = ws["pcg"].solve(ws["rhs"], ws["u"], ws["mask"], tol.cg_rtol, tol.cg_max_iterations, cg_atol)
             cg_total += cg_it
-            element_step.launch()
+            batch.element_step.launch()
 
-        late = np.flatnonzero(iterations[:k] < 0)
-        out[:, late] = ws["u"].numpy().reshape(n, cols)[:, late]
-        r_out[late], s_out[late] = r[late], s[late]
+        late = np.flatnonzero(slot_col[:live] >= 0)
+        if late.size:
+            cols = slot_col[late]
+            out[:, cols] = ws["u"].numpy().reshape(n, -1)[:, late]
+            r_out[cols], s_out[cols] = r[late], s[late]
         u = out
         for j, (src, reach) in enumerate(sets):
             u[~reach, j] = np.inf
             u[src, j] = 0.0
-        converged = iterations[:k] >= 0
+        converged = iterations >= 0
         if not converged.all():
             warnings.warn(f"ADMM did not converge in {tol.max_iterations} iterations for "
                           f"{np.count_nonzero(~converged)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return DistanceResult(
-            distance=u, iterations=np.where(converged, iterations[:k], it), converged=converged,
+            distance=u, iterations=np.where(converged, iterations, it), converged=converged,
             primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0)
+
+
+def _max_ratio(a, b):
+    """max(a / b) over the entries with b > 0 (a column made of sources only has a = b = 0)."""
+    return float(np.max(np.divide(a, b, out=np.zeros_like(a), where=b > 0), initial=0.0))
+
+
+class _ColumnBatch:
+    """The recorded ADMM launches of one batch, over its first ``blocks`` column blocks.
+
+    When columns converge, :meth:`compact` moves the columns still running into the freed
+    lanes of the first blocks and drops the emptied blocks from every launch, so a batch
+    costs about the sum of its columns' iterations rather than its slowest column's
+    iterations times the batch size.
+    """
+
+    def __init__(self, solver, ws, W, nb, shift, scale):
+        self.solver, self.ws, self.W = solver, ws, W
+        self.shift, self.scale = shift, scale
+        self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
+        self.move = lane_kernels(solver.scalar, W).move_columns
+        self._record(nb)
+
+    def _record(self, blocks):
+        """Record the three ADMM launches over column blocks 0..blocks-1 (their arguments stay
+        fixed for the whole solve: rho lives in a device array)."""
+        sv, ws, kern = self.solver, self.ws, self.kernels
+        n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
+        dev, chunk = sv.device, chunk_size(sv.device)
+        self.blocks = blocks
+        elem_dim = ((m + chunk - 1) // chunk, blocks)
+        vert_dim = ((n + chunk - 1) // chunk, blocks)
+        self.divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
+            sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"], ws["y"], ws["z"], ws["dz"],
+            ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
+        self.u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
+            sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.shift), sc(self.scale),
+            ws["rhs"], chunk, n])
+        self.element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
+            sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"], sc(tolerances.relaxation),
+            ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m])
+        ws["pcg"].set_active_blocks(blocks)
+
+    def compact(self, slot_col, slot_values):
+        """Move running columns out of the last blocks when they fit in fewer; returns the live slots.
+
+        ``slot_col`` (slots,) maps slot -> column (-1: free) and ``slot_values`` (c, slots)
+        holds per-slot host values; both are permuted in place like the device state.
+        """
+        W, live = self.W, self.blocks * self.W
+        running = np.flatnonzero(slot_col[:live] >= 0)
+        blocks = max(1, -(-running.size // W))
+        if blocks == self.blocks:
+            return live
+        keep = blocks * W
+        src = running[running >= keep]
+        dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
+        if src.size:
+            sv, ws = self.solver, self.ws
+            dev, chunk = sv.device, chunk_size(sv.device)
+            s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
+            d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
+            nb = ws["u"].shape[1]
+            # Dy and Dz too: this iteration's divergence is already computed and the u-step reads it
+            for name in ("u", "mask", "z", "y", "dz", "Dy", "Dz"):
+                a = ws[name]
+                a2 = a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
+                wp.launch(self.move, ((a2.shape[0] + chunk - 1) // chunk,), device=dev,
+                          inputs=[a2, s_arr, d_arr, src.size, chunk, a2.shape[0]])
+            slot_col[dst], slot_col[src] = slot_col[src], -1
+            slot_values[:, dst] = slot_values[:, src]
+        self._record(blocks)
+        return keep

@@ -1,0 +1,174 @@
+"""The quadratic regularizers W of the distance problem and their scale-invariant weights (SPEC section 3).
+
+    minimize_u  -A_V^T u + (alpha / 2) u^T W u   subject to |(G u)_e| <= 1, u_E = 0
+
+    "dirichlet":     W = W_D = G^T M_F G,                                alpha = alpha_hat A^(1/d)
+    "vector_field":  W = W_V = D (I + beta Vhat) G = G^T M_F (I + beta Vhat) G,
+                     Vhat block-diagonal, Vhat_f = V_f V_f^T, beta = beta_hat,  alpha = alpha_hat A^(1/d)
+    "hessian":       W = W_H, the curved Hessian energy (Stein et al. 2020, libigl's
+                     ``curved_hessian_energy``), u^T W_H u ~ integral of |Hess u|^2,
+                                                                         alpha = alpha_hat A^(3/2)
+
+(A is the total area, d = 2, or the total volume, d = 3.) W_V penalizes the gradient's
+component along the field, (G u)_f . V_f, so the isolines of u turn to follow V.
+The ADMM's u-step matrix is K(rho) = alpha W + rho W_D; :class:`Regularizer` stores W
+and W_D on the union of their sparsity patterns, so K(rho) for any rho is one vector
+operation on the values and keeps one pattern (``BatchedPCG.set_matrix``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["REGULARIZERS", "Regularizer", "build_regularizer"]
+
+REGULARIZERS = ("dirichlet", "vector_field", "hessian")
+
+HESSIAN_TOLERANCE_FACTOR = 1.0 / 20.0
+"""The Hessian's stopping tolerances are the defaults times this (SPEC section 4)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Regularizer:
+    """One regularizer of one mesh.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`REGULARIZERS`.
+    alpha : float
+        The raw weight alpha (from alpha_hat by the table above).
+    weights : (n, n) scipy.sparse.csr_matrix or None
+        W on the union pattern of W and W_D; None for "dirichlet" (W = W_D, whose u-step
+        matrix (alpha + rho) W_D is a rescaled W_D).
+    stiffness : (n, n) scipy.sparse.csr_matrix or None
+        W_D on the same pattern as ``weights`` (None for "dirichlet").
+    tolerance_factor : float
+        Factor on the ADMM stopping tolerances and on the u-step's CG tolerance
+        (``tolerances.cg_fraction``): 1, or 1/20 for the Hessian. Without the CG factor the
+        inexact u-steps kept the Hessian's primal residual above its tolerance (3,000
+        iterations without converging on a flat square).
+    dual_floor : bool
+        Measure the dual residual against max(|D y|, |A_V|) (free vertices) instead of
+        |D y| (Hessian). At the optimum A_V = alpha W u + D y on the free vertices, and the
+        multiplier y is nonzero wherever |G u| = 1. With W_D or W_V the constraint is always
+        active near the sources (their Green's functions have unbounded gradients there), but
+        a smooth Hessian-regularized u may meet |G u| <= 1 nowhere, so y -> 0 and a test
+        relative to |D y| alone would never hold.
+    rho_factors : (float, float)
+        Factors on ``tolerances.rho0`` and ``tolerances.rho_max``: (1, 1), or (1, 8) for the
+        Hessian (penalty up to 64 sqrt(A)): measured on spot (alpha_hat 1e-4, 1e-3, 0.05)
+        and on flat squares with and without a hole, 243-573 iterations where the default
+        schedule needed 668-1307 or more than 2,000; (8, 32) was faster at alpha_hat >= 1e-3
+        but did not converge at 1e-4, and residual balancing stopped up to 0.7% away.
+    """
+
+    name: str
+    alpha: float
+    weights: sp.csr_matrix | None
+    stiffness: sp.csr_matrix | None
+    tolerance_factor: float
+    dual_floor: bool
+    rho_factors: tuple
+
+    def system(self, rho):
+        """The u-step matrix K = alpha W + rho W_D, (n, n) csr on the union pattern (not for "dirichlet")."""
+        W, WD = self.weights, self.stiffness
+        return sp.csr_matrix((self.alpha * W.data + rho * WD.data, W.indices, W.indptr), shape=W.shape)
+
+
+def _on_pattern(matrix, pattern):
+    """The values of ``matrix`` at the stored entries of the csr ``pattern`` (a superset of its entries)."""
+    rows = np.repeat(np.arange(pattern.shape[0]), np.diff(pattern.indptr))
+    values = np.asarray(matrix.tocsr()[rows, pattern.indices]).ravel()
+    return sp.csr_matrix((values, pattern.indices, pattern.indptr), shape=pattern.shape)
+
+
+def _vector_field_matrix(operators, field, beta):
+    """W_V = G^T M_F (I + beta Vhat) G with Vhat_f = V_f V_f^T (field (m, 3))."""
+    m = field.shape[0]
+    blocks = np.eye(3)[None] + beta * field[:, :, None] * field[:, None, :]     # (m, 3, 3)
+    blocks *= operators.element_volumes[:, None, None]
+    rows = np.repeat(np.arange(3 * m).reshape(m, 3), 3, axis=1)
+    cols = np.tile(np.arange(3 * m).reshape(m, 3), (1, 3))
+    B = sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, 3 * m))
+    W = (operators.grad.T @ B @ operators.grad).tocsr()
+    return (W + W.T) * 0.5
+
+
+def _check_field(field, m):
+    try:
+        field = np.asarray(field, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected vector_field as a real ({m}, 3) array, got {type(field).__name__}") from None
+    if field.shape != (m, 3):
+        raise ValueError(f"expected vector_field of shape ({m}, 3) (one vector per element), got {field.shape}")
+    if not np.all(np.isfinite(field)):
+        bad = np.flatnonzero(~np.all(np.isfinite(field), axis=1))[0]
+        raise ValueError(f"expected a finite vector_field, got {field[bad].tolist()} on element {bad}")
+    return field
+
+
+def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_hat=None, vector_field=None):
+    """Validate the regularizer settings and assemble W (see the module docstring).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    operators : Operators
+        ``build_operators(mesh)``.
+    name : {"dirichlet", "vector_field", "hessian"}
+    alpha_hat : float
+        Scale-invariant weight >= 0 (validated by the caller).
+    beta_hat : float or None
+        Alignment weight >= 0 of "vector_field" (default 10); must be None otherwise.
+    vector_field : (m, 3) array_like or None
+        Per-element field V of "vector_field" (required there, refused otherwise). On
+        triangles only its component tangent to each face matters; its length scales the alignment
+        (unit: full weight beta, 0: none), e.g. :func:`warp_regdist.line_field` output.
+
+    Returns
+    -------
+    Regularizer
+    """
+    if name not in REGULARIZERS:
+        raise ValueError(f"expected regularizer among {list(REGULARIZERS)}, got {name!r}")
+    if name != "vector_field" and (beta_hat is not None or vector_field is not None):
+        given = "beta_hat" if beta_hat is not None else "vector_field"
+        raise ValueError(f"expected {given} only with regularizer 'vector_field', got it with {name!r}")
+    L = operators.length_scale
+    if name == "dirichlet":
+        return Regularizer(name, alpha_hat * L, None, None, 1.0, False, (1.0, 1.0))
+    if name == "vector_field":
+        if vector_field is None:
+            raise ValueError("expected a vector_field (m, 3) for regularizer 'vector_field', got None")
+        field = _check_field(vector_field, mesh.n_elements)
+        beta = 10.0 if beta_hat is None else beta_hat
+        try:
+            beta = float(beta)
+        except (TypeError, ValueError):
+            raise ValueError(f"expected a real beta_hat >= 0, got {beta_hat!r}") from None
+        if not math.isfinite(beta) or beta < 0:
+            raise ValueError(f"expected a finite beta_hat >= 0, got {beta_hat!r}")
+        W = _vector_field_matrix(operators, field, beta)
+        alpha, factor = alpha_hat * L, 1.0
+    else:
+        if mesh.elements.shape[1] != 3:
+            raise ValueError(f"expected a triangle mesh for regularizer 'hessian', got a tetrahedral mesh "
+                             f"({mesh.n_elements} tetrahedra)")
+        import igl
+
+        W = igl.curved_hessian_energy(np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+                                      np.ascontiguousarray(mesh.elements, dtype=np.int64))
+        W = (W + W.T) * 0.5
+        alpha, factor = alpha_hat * operators.total_volume ** 1.5, HESSIAN_TOLERANCE_FACTOR
+    WD = operators.stiffness
+    pattern = (abs(W) + abs(WD) + sp.identity(WD.shape[0], format="csr")).tocsr()
+    pattern.sort_indices()
+    hessian = name == "hessian"
+    return Regularizer(name, alpha, _on_pattern(W, pattern), _on_pattern(WD, pattern), factor, hessian,
+                       (1.0, 8.0) if hessian else (1.0, 1.0))
