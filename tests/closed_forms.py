@@ -48,3 +48,26 @@ def disk_distance(r, radius, alpha):
     if not 0 < 2.0 * alpha <= radius:
         raise ValueError(f"expected 0 < 2 alpha <= radius, got alpha {alpha} and radius {radius}")
     return np.where(r >= 2.0 * alpha, radius - r, radius - alpha - r**2 / (4.0 * alpha))
+
+
+def ball_distance(r, radius, alpha):
+    """Regularized distance to the boundary sphere of a solid ball.
+
+    Parameters
+    ----------
+    r : (k,) ndarray of float
+        Distances from the centre, 0 <= r <= radius.
+    radius : float
+        Ball radius R.
+    alpha : float
+        Raw weight, 0 < 3 alpha <= R.
+
+    Returns
+    -------
+    (k,) ndarray of float
+        u = R - r for r >= 3 alpha, u = R - 3 alpha / 2 - r^2 / (6 alpha) for r <= 3 alpha
+        (Laplace(u) = -1 / alpha inside, C^1 at r = 3 alpha).
+    """
+    if not 0 < 3.0 * alpha <= radius:
+        raise ValueError(f"expected 0 < 3 alpha <= radius, got alpha {alpha} and radius {radius}")
+    return np.where(r >= 3.0 * alpha, radius - r, radius - 1.5 * alpha - r**2 / (6.0 * alpha))

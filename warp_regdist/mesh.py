@@ -163,21 +163,32 @@ _POLYGON_LINE = {
 }
 
 
+_VOLUME_FORMATS = {".msh": ("gmsh", "ansys"), ".vtk": ("vtk",), ".vtu": ("vtu",), ".mesh": ("medit",)}  # meshio
+_SURFACE_FORMATS = (".obj", ".off", ".ply", ".stl")  # read by trimesh
+
+
 def load_mesh(path):
-    """Read a triangle mesh (OBJ, OFF, PLY, STL) keeping the file's vertex order.
+    """Read a triangle or tetrahedral mesh file, keeping the file's vertex order.
 
-    Polygons with more than three corners are fan-triangulated by trimesh, with a
-    warning that says how many. Raises :class:`MeshError` for a missing or unreadable
-    file and for every defect :class:`Mesh` checks.
+    Triangle surfaces: OBJ, OFF, PLY, STL (trimesh); polygons with more than three
+    corners are fan-triangulated, with a warning that says how many. Tetrahedral (or
+    triangle) meshes: gmsh ``.msh`` (ASCII or binary, versions 2.2 and 4.1; also ANSYS
+    Fluent ``.msh``), VTK ``.vtk`` / ``.vtu``, Medit ``.mesh`` (meshio),
+    see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
+    for a missing or unreadable file and for every defect :class:`Mesh` checks.
     """
-    import trimesh
-
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise MeshError(f"expected an existing mesh file, got {path!r} (no such file)")
     ext = os.path.splitext(path)[1].lower()
-    if ext not in (".obj", ".off", ".ply", ".stl"):
-        raise MeshError(f"expected a mesh file ending in .obj, .off, .ply or .stl, got {path!r}")
+    if ext in _VOLUME_FORMATS:
+        V, T = _read_volume_file(path, ext)
+        return Mesh(V, T)
+    if ext not in _SURFACE_FORMATS:
+        raise MeshError(f"expected a mesh file ending in .obj, .off, .ply, .stl, .msh, .vtk, .vtu or .mesh, "
+                        f"got {path!r}")
+    import trimesh
+
     try:
         kwargs = {"maintain_order": True} if ext == ".obj" else {}
         loaded = trimesh.load(path, process=False, force="mesh", **kwargs)
@@ -195,6 +206,59 @@ def load_mesh(path):
     if n_poly:
         warnings.warn(f"{path}: {n_poly} polygon faces with more than 3 corners were triangulated", stacklevel=2)
     return Mesh(V, F)
+
+
+def _read_volume_file(path, ext):
+    """Points and elements of a gmsh / VTK / Medit file, read with meshio.
+
+    The elements are all ``tetra`` cells of the file, in file order, when it has any; the
+    file's lower-dimensional cells (boundary triangles, lines, points, as gmsh writes them)
+    are then ignored. Without tetrahedra, the ``triangle`` cells are used. Any other cell
+    type of the dimension used (hexahedra, wedges, pyramids, quadratic tetrahedra beside
+    or instead of tetrahedra; quads beside or instead of triangles) is refused rather than
+    dropped. meshio returns 0-based point indices in the file's point order for every
+    format (Medit's 1-based indices and gmsh's node tags are converted); 2-D points get
+    z = 0.
+
+    Returns
+    -------
+    V : (n, 3) ndarray of float64
+    T : (m, 4) or (m, 3) ndarray of int64
+    """
+    import meshio
+
+    reasons = []
+    for fmt in _VOLUME_FORMATS[ext]:
+        try:
+            # the format's own reader: meshio.read() calls sys.exit on a file it cannot parse
+            data = getattr(meshio, fmt).read(path)
+            break
+        except Exception as exc:  # meshio raises ReadError, but also ValueError, UnicodeDecodeError, ...
+            reasons.append(str(exc).strip() or f"not a valid {fmt} file")
+    else:
+        raise MeshError(f"could not read mesh file {path!r}: {'; '.join(reasons)}")
+    counts = {}
+    for block in data.cells:
+        counts.setdefault((block.dim, block.type), 0)
+        counts[(block.dim, block.type)] += len(block.data)
+    listing = ", ".join(f"{k} {t}" for (_, t), k in counts.items()) or "no cells"
+    for dim, kind in ((3, "tetra"), (2, "triangle")):
+        others = sorted(t for (d, t) in counts if d == dim and t != kind)
+        if others and (dim, kind) in counts:
+            raise MeshError(f"expected only {kind} cells among the {dim}-D cells of {path!r}, got mixed cells "
+                            f"({listing}); {', '.join(others)} are not supported")
+        if others:
+            raise MeshError(f"expected tetrahedra ('tetra') or triangles in {path!r}, got unsupported "
+                            f"{dim}-D cells ({listing})")
+        if (dim, kind) in counts:
+            T = np.concatenate([b.data for b in data.cells if b.type == kind])
+            break
+    else:
+        raise MeshError(f"expected tetrahedra ('tetra') or triangles in {path!r}, got {listing}")
+    V = np.asarray(data.points)
+    if V.ndim == 2 and V.shape[1] == 2:
+        V = np.concatenate([V, np.zeros((len(V), 1))], axis=1)
+    return V, T
 
 
 def _count_polygons(path, ext):

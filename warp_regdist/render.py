@@ -24,7 +24,7 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-__all__ = ["isolines", "render_distance", "view_rotation"]
+__all__ = ["isolines", "plane_section", "render_cut", "render_distance", "view_rotation"]
 
 _DPI = 150
 _PANEL_WIDTH_IN = 4.6  # width of one view in inches
@@ -238,6 +238,20 @@ def _visible(ax, buffer, xy, code_min) -> np.ndarray:
     return code_min >= buffer[row, col]
 
 
+def _finish(fig, cax, norm, colormap, levels, unreachable, title, fig_h, path) -> None:
+    """Colour bar (with the isoline levels) in ``cax``, the title, and the PNG at ``path``."""
+    cbar = fig.colorbar(ScalarMappable(norm=norm, cmap=colormap), cax=cax)
+    if len(levels):
+        cbar.add_lines(levels, colors=[_ISOLINE_RGBA[:3]] * len(levels), linewidths=0.6)
+    cbar.ax.tick_params(labelsize=8)
+    cbar.set_label("distance", fontsize=9)
+    if unreachable:
+        cax.text(0.5, -0.04, "grey:\nunreachable", transform=cax.transAxes, ha="center", va="top", fontsize=7)
+    if title:
+        fig.text(0.5, 1.0 - 0.1 / fig_h, title, ha="center", va="top", fontsize=11)
+    fig.savefig(os.fspath(path), format="png", dpi=_DPI)
+
+
 def render_distance(
     mesh,
     values,
@@ -384,13 +398,190 @@ def render_distance(
             0.8 * panel_h / fig_h,
         )
     )
-    cbar = fig.colorbar(ScalarMappable(norm=norm, cmap=colormap), cax=cax)
-    if len(levels):
-        cbar.add_lines(levels, colors=[_ISOLINE_RGBA[:3]] * len(levels), linewidths=0.6)
-    cbar.ax.tick_params(labelsize=8)
-    cbar.set_label("distance", fontsize=9)
-    if not finite.all():
-        cax.text(0.5, -0.04, "grey:\nunreachable", transform=cax.transAxes, ha="center", va="top", fontsize=7)
-    if title:
-        fig.text(0.5, 1.0 - 0.1 / fig_h, title, ha="center", va="top", fontsize=11)
-    fig.savefig(os.fspath(path), format="png", dpi=_DPI)
+    _finish(fig, cax, norm, colormap, levels, not finite.all(), title, fig_h, path)
+
+
+def _section_table() -> tuple[np.ndarray, np.ndarray]:
+    """Marching-tetrahedra table: for each sign pattern (bit l set when corner l is on the
+    positive side), up to two triangles, each given by the three tetrahedron edges (pairs of
+    local corners) its corners lie on.  Returns (16, 2, 3, 2) edges and (16, 2) validity."""
+    edges = np.zeros((16, 2, 3, 2), dtype=np.int64)
+    valid = np.zeros((16, 2), dtype=bool)
+    for mask in range(1, 15):
+        up = [l for l in range(4) if mask >> l & 1]
+        down = [l for l in range(4) if not mask >> l & 1]
+        if len(up) == 2:  # quadrilateral (a,c) (a,d) (b,d) (b,c), cut into two triangles
+            (a, b), (c, d) = up, down
+            quad = [(a, c), (a, d), (b, d), (b, c)]
+            edges[mask] = [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]]
+            valid[mask] = True
+        else:  # one corner alone on its side: a triangle on its three edges
+            alone, rest = (up, down) if len(up) == 1 else (down, up)
+            edges[mask, 0] = [(alone[0], r) for r in rest]
+            valid[mask, 0] = True
+    return edges, valid
+
+
+def plane_section(mesh, values, plane_normal=(0.0, 0.0, 1.0), offset=None) -> tuple[np.ndarray, np.ndarray]:
+    """Cut a tetrahedral mesh with a plane: triangles of the section and the field on them.
+
+    Marching tetrahedra: with s_i = n . x_i - offset (n the unit normal), a tetrahedron
+    whose corners are not all on one side (s >= 0 counts as the positive side) meets the
+    plane in a triangle (one corner alone on its side) or a quadrilateral (two and two),
+    cut here into two triangles.  Its corners lie on the edges (i, j) whose ends change
+    side, at ``x_i + t (x_j - x_i)`` with ``t = s_i / (s_i - s_j)``, where the piecewise
+    linear field is ``v_i + t (v_j - v_i)`` (exact: the field is linear on the tetrahedron,
+    so it is linear on every section triangle too).  A tetrahedron face lying in the
+    plane is returned once (by the tetrahedron on its negative side).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Tetrahedral mesh (``elements`` of shape (m, 4)).
+    values : (n,) float
+        Value per vertex; non-finite values propagate to the section.
+    plane_normal : (3,) float
+        Normal of the plane (any length but zero).
+    offset : float, optional
+        The plane is {x : n . x = offset} for the unit normal n; default: through the
+        centre of the mesh's bounding box.
+
+    Returns
+    -------
+    points : (t, 3, 3) float64
+        Corners of the t section triangles (zero-area ones removed).
+    point_values : (t, 3) float64
+        The field at those corners.
+    """
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    tets = np.asarray(mesh.elements, dtype=np.int64)
+    if tets.ndim != 2 or tets.shape[1] != 4:
+        raise ValueError(f"expected a tetrahedral mesh (elements of shape (m, 4)), got elements of shape {tets.shape}")
+    values = _vertex_values(values, len(vertices))
+    normal = np.asarray(plane_normal, dtype=np.float64)
+    if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
+        raise ValueError(f"expected plane_normal as a non-zero finite 3-vector, got {plane_normal!r}")
+    normal = normal / np.linalg.norm(normal)
+    heights = vertices @ normal
+    if offset is None:
+        offset = float(0.5 * (vertices.min(axis=0) + vertices.max(axis=0)) @ normal)
+    s = heights - float(offset)
+    corner_s = s[tets]  # (m, 4)
+    mask = (corner_s >= 0) @ np.array([1, 2, 4, 8])
+    edges, valid = _section_table()
+    tet, slot = np.nonzero(valid[mask])
+    ends = tets[tet[:, None, None], edges[mask[tet], slot]]  # (t, 3, 2) global vertex indices
+    si, sj = s[ends[..., 0]], s[ends[..., 1]]
+    t = si / (si - sj)
+    xi, xj = vertices[ends[..., 0]], vertices[ends[..., 1]]
+    points = xi + t[..., None] * (xj - xi)
+    with np.errstate(invalid="ignore"):  # inf - inf on unreachable vertices: NaN, drawn grey
+        point_values = values[ends[..., 0]] + t * (values[ends[..., 1]] - values[ends[..., 0]])
+    area = np.linalg.norm(np.cross(points[:, 1] - points[:, 0], points[:, 2] - points[:, 0]), axis=1)
+    keep = area > 1e-12 * max(np.ptp(heights), np.finfo(np.float64).tiny) ** 2
+    return points[keep], point_values[keep]
+
+
+def render_cut(
+    mesh,
+    values,
+    path,
+    plane_normal=(0.0, 0.0, 1.0),
+    offset=None,
+    levels: int | np.ndarray = 20,
+    title: str | None = None,
+    cmap: str = "viridis",
+) -> None:
+    """Write a PNG of a planar cut through a tetrahedral mesh, coloured by a field, with isolines.
+
+    The section (:func:`plane_section`) is drawn in the plane's own frame: the horizontal
+    axis is the coordinate axis least aligned with the normal, made orthogonal to it, the
+    vertical axis the normal crossed with it (for the default normal z: x to the right,
+    y up).  Colours are interpolated linearly inside each section triangle (Gouraud
+    shading, exact for the piecewise-linear field); triangles touching a non-finite value
+    are grey.  Isolines are the exact level sets of the field in the section (marching
+    triangles, :func:`isolines`).  The colour range and the default levels are those of
+    the whole field, so cuts at different offsets share one scale.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Tetrahedral mesh.
+    values : (n,) float
+        Value per vertex, e.g. a distance; ``inf``/``nan`` are drawn grey.
+    path : str or os.PathLike
+        Output file, written as PNG at 150 dpi.
+    plane_normal : (3,) float
+        Normal of the cutting plane.
+    offset : float, optional
+        The plane is {x : n . x = offset} for the unit normal n; default: through the
+        centre of the bounding box.
+    levels : int or (L,) float
+        Number of evenly spaced isoline levels strictly between the smallest and the
+        largest finite value of the field, or the levels themselves; 0 draws none.
+    title : str, optional
+        Text above the picture.
+    cmap : str
+        Matplotlib colour map name.
+
+    Raises
+    ------
+    ValueError
+        For a triangle mesh, a zero normal, or a plane that misses the mesh.
+    """
+    points, point_values = plane_section(mesh, values, plane_normal, offset)
+    if len(points) == 0:
+        raise ValueError(f"expected a plane that cuts the mesh, got normal {tuple(plane_normal)} and offset {offset}")
+    values = np.asarray(values, dtype=np.float64)
+    normal = np.asarray(plane_normal, dtype=np.float64) / np.linalg.norm(plane_normal)
+    axis = np.eye(3)[np.argmin(np.abs(normal))]
+    right = axis - (axis @ normal) * normal
+    right /= np.linalg.norm(right)
+    up = np.cross(normal, right)
+    xy = np.stack([points @ right, points @ up], axis=-1)  # (t, 3, 2)
+
+    colormap = colormaps[cmap]
+    finite = np.isfinite(values)
+    lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
+    norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
+    if np.ndim(levels) == 0:
+        levels = _default_levels(values, int(levels))
+    else:
+        levels = np.asarray(levels, dtype=np.float64).ravel()
+    tri_finite = np.isfinite(point_values).all(axis=1)
+
+    low, high = xy.reshape(-1, 2).min(axis=0), xy.reshape(-1, 2).max(axis=0)
+    half = 0.5 * (high - low) * (1.0 + _MARGIN)
+    half = np.maximum(half, 1e-12 + 0.02 * half.max())
+    mid = 0.5 * (low + high)
+    panel_h = _PANEL_WIDTH_IN * half[1] / half[0]
+    left_in, top_in, bottom_in, cbar_in = 0.75, (0.45 if title else 0.15), 0.45, 1.15
+    fig_w, fig_h = left_in + _PANEL_WIDTH_IN + cbar_in, panel_h + top_in + bottom_in
+    fig = Figure(figsize=(fig_w, fig_h), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    fig.patch.set_facecolor("white")
+    ax = fig.add_axes((left_in / fig_w, bottom_in / fig_h, _PANEL_WIDTH_IN / fig_w, panel_h / fig_h))
+    ax.set_xlim(mid[0] - half[0], mid[0] + half[0])
+    ax.set_ylim(mid[1] - half[1], mid[1] + half[1])
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel(f"along ({right[0]:.3g}, {right[1]:.3g}, {right[2]:.3g})", fontsize=8)
+    ax.set_ylabel(f"along ({up[0]:.3g}, {up[1]:.3g}, {up[2]:.3g})", fontsize=8)
+    if tri_finite.any():
+        good = xy[tri_finite].reshape(-1, 2)
+        ax.tripcolor(good[:, 0], good[:, 1], np.arange(len(good)).reshape(-1, 3),
+                     point_values[tri_finite].ravel(), shading="gouraud", cmap=colormap, norm=norm)
+    if not tri_finite.all():
+        ax.add_collection(PolyCollection(xy[~tri_finite], facecolors=_UNREACHABLE_RGB,
+                                          edgecolors=_UNREACHABLE_RGB, linewidths=0.5, antialiased=False),
+                          autolim=False)
+    if len(levels) and tri_finite.any():
+        flat = points[tri_finite].reshape(-1, 3)
+        segments, _, _ = _isoline_segments(flat, np.arange(len(flat)).reshape(-1, 3),
+                                           point_values[tri_finite].ravel(), levels)
+        seg2 = np.stack([segments @ right, segments @ up], axis=-1)
+        ax.add_collection(LineCollection(seg2, colors=[_ISOLINE_RGBA], linewidths=0.7, capstyle="round"),
+                          autolim=False)
+    cax = fig.add_axes(((left_in + _PANEL_WIDTH_IN + 0.15) / fig_w, (bottom_in + 0.1 * panel_h) / fig_h,
+                        0.16 / fig_w, 0.8 * panel_h / fig_h))
+    _finish(fig, cax, norm, colormap, levels, not tri_finite.all(), title, fig_h, path)
