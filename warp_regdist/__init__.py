@@ -5,12 +5,19 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 """
 
 from . import metrics
+from .all_pairs_admm import AllPairsResult, all_pairs
+from .export import save_vtu
+from .line_field import line_field
 from .mesh import Mesh, MeshError, boundary_vertices, load_mesh
 from .operators import Operators, build_operators
+from .regularizers import REGULARIZERS
 from .solver import ConvergenceWarning, DistanceResult, DistanceSolver
+from .source_rows import distance_matrix
 from .tolerances import Tolerances, tolerances
 
 __version__ = "0.1.0"
 
 __all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices", "Operators", "build_operators",
-           "DistanceSolver", "DistanceResult", "ConvergenceWarning", "Tolerances", "tolerances", "metrics", "__version__"]
+           "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
+           "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
+           "Tolerances", "tolerances", "__version__"]

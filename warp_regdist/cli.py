@@ -1,7 +1,7 @@
 """The ``warp-regdist`` command: regularized geodesic distances from the shell.
 
-Subcommands: ``demo`` (the spot cow shipped with the package) and ``distance`` (any
-mesh file).  Bad input (missing or malformed files, bad sources, an unknown device, an
+Subcommands: ``demo`` (the spot cow shipped with the package), ``distance`` (any
+mesh file) and ``allpairs`` (the symmetric all-pairs distance matrix).  Bad input (missing or malformed files, bad sources, an unknown device, an
 unsupported output extension) ends with one line ``warp-regdist: error: ...`` on stderr
 and exit status 2; other exceptions are bugs and propagate with their traceback.
 """
@@ -22,7 +22,7 @@ __all__ = ["main"]
 PROG = "warp-regdist"
 DEMO_SOURCE = 2272
 DEMO_ALPHA_HAT = 0.05
-_OUTPUT_EXTENSIONS = (".npy", ".csv")
+_OUTPUT_EXTENSIONS = (".npy", ".csv", ".vtu")
 _LISTED_SOURCES = 8  # sources named one by one in the summary
 
 
@@ -82,13 +82,18 @@ def _parser() -> argparse.ArgumentParser:
 
     distance = sub.add_parser(
         "distance",
-        help="regularized distance on a mesh file, written as .npy or .csv",
+        help="regularized distance on a mesh file, written as .npy, .csv or .vtu",
         description="Regularized geodesic distance from a set of source vertices on a triangle\n"
-        "mesh (OBJ, OFF, PLY or STL; vertex order as in the file).",
+        "mesh (OBJ, OFF, PLY or STL) or a tetrahedral mesh (gmsh .msh, .vtk, .vtu, Medit\n"
+        ".mesh); vertex order as in the file.",
         epilog=_EXIT_STATUS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    distance.add_argument("mesh", metavar="MESH", help="triangle mesh file (.obj, .off, .ply, .stl)")
+    distance.add_argument(
+        "mesh",
+        metavar="MESH",
+        help="triangle or tetrahedral mesh file (.obj, .off, .ply, .stl, .msh, .vtk, .vtu, .mesh)",
+    )
     distance.add_argument(
         "--sources",
         required=True,
@@ -101,17 +106,65 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=DEMO_ALPHA_HAT,
         metavar="A",
-        help="scale-invariant regularization weight >= 0; alpha = A sqrt(area) (default: 0.05)",
+        help="scale-invariant regularization weight >= 0; alpha = A sqrt(area), or A volume^(1/3) "
+        "on a tetrahedral mesh (default: 0.05)",
+    )
+    distance.add_argument(
+        "--regularizer",
+        default="dirichlet",
+        choices=("dirichlet", "vector_field", "hessian"),
+        help="dirichlet (default); vector_field: isolines follow the field of --directions; "
+        "hessian: isolines ignore the boundary (triangle meshes; alpha = A area^(3/2), so use "
+        "a much smaller A, e.g. 1e-3)",
+    )
+    distance.add_argument(
+        "--beta-hat",
+        type=float,
+        default=None,
+        metavar="B",
+        help="alignment weight >= 0 of --regularizer vector_field (default: 10)",
+    )
+    distance.add_argument(
+        "--directions",
+        metavar="FILE",
+        help="field of --regularizer vector_field: .npy of shape (faces, 3), one vector per face; "
+        "or .csv with rows 'face,dx,dy,dz' (sign-free directions on a few faces, interpolated "
+        "into the smoothest line field)",
     )
     distance.add_argument(
         "--output",
         required=True,
         metavar="FILE",
-        help="distance per vertex: .npy (float64 array) or .csv (one value per line, full "
-        "precision, 'inf' for vertices no source reaches)",
+        help="distance per vertex: .npy (float64 array), .csv (one value per line, full "
+        "precision, 'inf' for vertices no source reaches) or .vtu (the mesh with point data "
+        "'distance', NaN where no source reaches; opens in ParaView)",
     )
-    distance.add_argument("--png", metavar="FILE", help="also write a picture of the distance (.png)")
+    distance.add_argument(
+        "--png",
+        metavar="FILE",
+        help="also write a picture of the distance (.png); on a tetrahedral mesh, its cut by the "
+        "plane z = centre of the bounding box, with isolines",
+    )
     solver_options(distance)
+
+    allpairs = sub.add_parser(
+        "allpairs",
+        help="symmetric all-pairs distance matrix (n x n), written as .npy",
+        description="All-pairs regularized distance matrix on a connected triangle mesh (Algorithm 2,\n"
+        "symmetric by construction), written as an (n, n) float64 .npy; progress on stderr.",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    allpairs.add_argument("mesh", metavar="MESH", help="triangle mesh file (.obj, .off, .ply, .stl)")
+    allpairs.add_argument(
+        "--alpha-hat",
+        type=float,
+        default=0.03,
+        metavar="A",
+        help="scale-invariant regularization weight >= 0; alpha = A sqrt(area) (default: 0.03)",
+    )
+    allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
+    solver_options(allpairs)
     return parser
 
 
@@ -163,15 +216,17 @@ def _warn(message: str) -> None:
     print(f"{PROG}: warning: {message}", file=sys.stderr)
 
 
-def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False):
+def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
+           **regularization):
     """Solve once; returns (solver, result), reporting non-convergence on stderr
-    (and, with ``verbose``, the ADMM's progress every 2 s on stderr)."""
+    (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``regularization``:
+    the DistanceSolver keywords regularizer, beta_hat, vector_field."""
     import warp as wp
 
     from . import ConvergenceWarning, DistanceSolver
 
     wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
-    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype)
+    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = solver.solve(sources, verbose=verbose)
@@ -200,9 +255,11 @@ def _load(path: str):
 
 def _summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
     status = "converged" if result.converged else "NOT converged"
+    elements = "faces" if mesh.element_dim == 2 else "tetrahedra"
     return (
-        f"{name}: {mesh.n_vertices} vertices, {mesh.n_elements} faces. Regularized geodesic "
-        f"distance from {described}, alpha_hat {solver.alpha_hat:g} (alpha {solver.alpha:.4g}), "
+        f"{name}: {mesh.n_vertices} vertices, {mesh.n_elements} {elements}. Regularized geodesic "
+        f"distance from {described}, {solver.regularizer.name} regularizer, alpha_hat {solver.alpha_hat:g} "
+        f"(alpha {solver.alpha:.4g}), "
         f"on {solver.device} in {solver.dtype}: {result.iterations} ADMM iterations, {status} "
         f"(primal residual {result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}), "
         f"{result.seconds:.2f} s. Largest finite distance "
@@ -215,25 +272,101 @@ def _finite_max(values: np.ndarray) -> float:
     return float(finite.max()) if finite.size else float("nan")
 
 
+def _regularization(args: argparse.Namespace, mesh) -> dict:
+    """DistanceSolver keywords from --regularizer, --beta-hat and --directions."""
+    from . import line_field
+
+    if args.directions is None:
+        if args.regularizer == "vector_field":
+            raise ValueError("expected --directions FILE with --regularizer vector_field, got none")
+        return {"regularizer": args.regularizer, "beta_hat": args.beta_hat}  # the solver refuses a lone beta_hat
+    if args.regularizer != "vector_field":
+        raise ValueError(f"expected --directions only with --regularizer vector_field, "
+                         f"got --regularizer {args.regularizer}")
+    ext = os.path.splitext(args.directions)[1].lower()
+    if ext == ".npy":
+        field = np.load(args.directions, allow_pickle=False)
+    elif ext == ".csv":
+        rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
+        if rows.shape[1] != 4 or not np.all(rows[:, 0] == np.round(rows[:, 0])):
+            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' (integer face), got {rows.shape[1]} "
+                             f"columns in {args.directions!r}")
+        field = line_field(mesh, rows[:, 0].astype(np.int64), rows[:, 1:])
+    else:
+        raise ValueError(f"expected --directions ending in .npy or .csv, got {args.directions!r}")
+    return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field}
+
+
 def _distance(args: argparse.Namespace) -> None:
-    from .render import render_distance
+    from .export import save_vtu
+    from .render import render_cut, render_distance
 
     _check_output(args.output, _OUTPUT_EXTENSIONS, "--output")
     if args.png is not None:
         _check_output(args.png, (".png",), "--png")
     mesh = _load(args.mesh)
     sources, described = _parse_sources(args.sources, mesh)
-    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet)
-    _write_values(args.output, result.distance)
+    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
+                            **_regularization(args, mesh))
+    if args.output.lower().endswith(".vtu"):
+        save_vtu(args.output, mesh, {"distance": result.distance})
+    else:
+        _write_values(args.output, result.distance)
     written = [args.output]
     if args.png is not None:
         marked = None if args.sources.strip().lower() == "boundary" else sources
         name = os.path.basename(args.mesh)
         title = f"{name}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
-        render_distance(mesh, result.distance, args.png, sources=marked, title=title)
+        if mesh.element_dim == 3:
+            render_cut(mesh, result.distance, args.png, title=f"{title}, cut z = centre")
+        else:
+            render_distance(mesh, result.distance, args.png, sources=marked, title=title)
         written.append(args.png)
     if not args.quiet:
         print(_summary(os.path.basename(args.mesh), mesh, described, solver, result, written))
+
+
+def _allpairs_progress():
+    """A progress callback for ``all_pairs`` printing one stderr line per ~2 s (and the last
+    iteration): iteration, the seven residuals / their tolerances, elapsed time, memory."""
+    from .all_pairs_admm import RESIDUAL_NAMES
+
+    last = [-10.0]
+
+    def show(iteration, residuals, tolerance, seconds, memory):
+        if seconds - last[0] < 2.0 and np.any(residuals > tolerance):
+            return
+        last[0] = seconds
+        parts = " ".join(f"{k} {r:.2e}/{t:.2e}" for k, r, t in zip(RESIDUAL_NAMES, residuals, tolerance))
+        print(f"  iteration {iteration}: {parts} (residual/tolerance), {seconds:.1f} s, {memory / 1e9:.2f} GB",
+              file=sys.stderr, flush=True)
+
+    return show
+
+
+def _allpairs(args: argparse.Namespace) -> None:
+    import warp as wp
+
+    from . import ConvergenceWarning, all_pairs
+
+    _check_output(args.output, (".npy",), "--output")
+    mesh = _load(args.mesh)
+    wp.config.log_level = wp.LOG_WARNING
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
+                           progress=None if args.quiet else _allpairs_progress())
+    for w in caught:
+        if not issubclass(w.category, ConvergenceWarning):
+            _warn(str(w.message))
+    if not result.converged:
+        _warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is approximate")
+    np.save(args.output, result.distance)
+    if not args.quiet:
+        print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. All-pairs regularized distance, "
+              f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "
+              f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
+              f"{result.memory_bytes / 1e9:.2f} GB. Largest distance {result.distance.max():.4g}. Wrote {args.output}.")
 
 
 def _demo(args: argparse.Namespace) -> None:
@@ -277,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
     try:
-        {"demo": _demo, "distance": _distance}[args.command](args)
+        {"demo": _demo, "distance": _distance, "allpairs": _allpairs}[args.command](args)
     except (ValueError, OSError) as exc:  # MeshError is a ValueError
         message = " ".join(str(exc).split())
         print(f"{PROG}: error: {message}", file=sys.stderr)

@@ -1,0 +1,113 @@
+"""All-pairs benchmark (issue 4): Algorithm 2 on cat_rr beside n symmetrized single-source solves.
+
+    python benchmarks/all_pairs.py                         # cat_rr, float32 and float64, baseline
+    python benchmarks/all_pairs.py --dtypes float32 --no-baseline
+    python benchmarks/all_pairs.py --reference-scale 0.2   # also a run at tolerances x 0.2 (slow)
+
+For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
+the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
+RSS of the process, symmetry error and sampled triangle-inequality violations); then, in
+the same process, ``wrd.distance_matrix`` over all n vertices (batched single-source solves,
+symmetrized) at alpha_hat and at 2 alpha_hat (the single-source weight whose rows are
+closest to the all-pairs rows), with its distance to the all-pairs matrix. With
+``--reference-scale`` the float64 run is repeated with every relative tolerance scaled
+(a tighter solve of the same problem) and the default runs' max deviation from it is
+reported in % of the maximal distance. The kernel cache is warmed on a small mesh first,
+so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
+"""
+
+import argparse
+import csv
+import os
+import resource
+import sys
+import time
+import warnings
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+import meshes  # noqa: E402
+import warp as wp  # noqa: E402
+import warp_regdist as wrd  # noqa: E402
+from warp_regdist.all_pairs_admm import RESIDUAL_NAMES  # noqa: E402
+from warp_regdist.metrics import symmetry_error, triangle_inequality_violations  # noqa: E402
+
+RESULTS = os.path.join(HERE, "results", "all_pairs.csv")
+DEFAULTS = dict(eps_rel=5e-4, eps_rel_consensus=5e-5, eps_rel_dual=1e-2)  # all_pairs' defaults
+
+
+def peak_rss_gb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
+def quality(D, area):
+    return dict(symmetry_max=float(symmetry_error(D, area).max()),
+                violations=float(triangle_inequality_violations(D, samples=2_000_000, seed=0)))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--mesh", default="cat_rr")
+    parser.add_argument("--alpha-hat", type=float, default=0.03)
+    parser.add_argument("--dtypes", nargs="+", default=["float32", "float64"])
+    parser.add_argument("--no-baseline", action="store_true")
+    parser.add_argument("--reference-scale", type=float, default=None)
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args()
+    wp.config.log_level = wp.LOG_WARNING
+    warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+    mesh = meshes.shared_mesh(args.mesh)
+    if mesh is None:
+        sys.exit(f"expected ../shared/meshes/{args.mesh}.off beside the checkout, got none")
+    area = wrd.build_operators(mesh).total_volume
+    n = mesh.n_vertices
+    small = meshes.cube_sphere(3)
+    rows = []
+    results = {}
+    for dtype in args.dtypes:  # warm the kernel cache (all_pairs and the single-source solver)
+        wrd.all_pairs(small, args.alpha_hat, device=args.device, dtype=dtype, max_iterations=2)
+        wrd.distance_matrix(small, args.alpha_hat, sources=[0], device=args.device, dtype=dtype)
+    for dtype in args.dtypes:
+        res = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype=dtype)
+        results[dtype] = res.distance
+        row = dict(method="all_pairs", dtype=dtype, n=n, alpha_hat=args.alpha_hat, seconds=round(res.seconds, 2),
+                   iterations=res.iterations, cg_iterations=res.cg_iterations, converged=res.converged,
+                   memory_gb=round(res.memory_bytes / 1e9, 3), bytes_per_n2=round(res.memory_bytes / n**2, 1),
+                   peak_rss_gb=round(peak_rss_gb(), 2), **quality(res.distance, area))
+        row.update({f"{k}/eps": round(float(r / t), 3) for k, r, t in zip(RESIDUAL_NAMES, res.residuals, res.tolerance)})
+        rows.append(row)
+        print(row, flush=True)
+    if args.reference_scale:
+        tight = {k: v * args.reference_scale for k, v in DEFAULTS.items()}
+        ref = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype="float64", max_iterations=5000, **tight)
+        print(f"reference (tolerances x {args.reference_scale}): {ref.iterations} iterations, {ref.seconds:.1f} s, "
+              f"converged {ref.converged}", flush=True)
+        for row in rows:
+            row["error_vs_tight_pct"] = round(100 * float(np.abs(results[row["dtype"]] - ref.distance).max()
+                                                    / ref.distance.max()), 3)
+    if not args.no_baseline:
+        U = results.get("float64", next(iter(results.values())))
+        for scale in (1.0, 2.0):
+            t0 = time.perf_counter()
+            D = wrd.distance_matrix(mesh, scale * args.alpha_hat, symmetrize=True, device=args.device,
+                                    dtype=args.dtypes[0])
+            row = dict(method=f"distance_matrix (alpha_hat x {scale:g}, symmetrized)", dtype=args.dtypes[0], n=n,
+                       alpha_hat=args.alpha_hat * scale, seconds=round(time.perf_counter() - t0, 2),
+                       peak_rss_gb=round(peak_rss_gb(), 2), **quality(D, area),
+                       max_diff_vs_all_pairs_pct=round(100 * float(np.abs(D - U).max() / U.max()), 3))
+            rows.append(row)
+            print(row, flush=True)
+    os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+    with open(RESULTS, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,63 @@
+"""Independent reference for the all-pairs problem on M x M (SPEC section 5, Algorithm 2's problem).
+
+Uses the numpy assembly of ``reference_solver`` (not ``warp_regdist``) and solves
+
+    minimize_U   -A_V^T U A_V + (alpha / 2) (sum_j A_V[j] E(U[:, j]) + sum_i A_V[i] E(U[i, :]))
+    subject to   |(G U[:, j])_f| <= 1,  |(G U[i, :])_f| <= 1  for every face f, row i, column j,
+                 U >= 0,  U_ii <= 0,
+
+with E(u) = sum_f a_f |(G u)_f|^2 = u^T W_D u (so the energy term is
+(alpha / 2) Tr(M_V U^T W_D U + U W_D U^T M_V)), by cvxpy + Clarabel (interior point).
+
+``symmetric=True`` solves the same problem over symmetric U only, with the column
+constraints alone: the problem is invariant under U -> U^T and its minimizer is unique
+(Theorem 6.1 of the paper), so the minimizer is symmetric and both versions agree. It has
+half the cones and lets Clarabel handle a few hundred vertices.
+"""
+
+import cvxpy as cp
+import numpy as np
+
+import reference_solver as rs
+
+
+def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_tol=1e-8):
+    """Exact minimizer U (n, n) of the all-pairs problem with raw weight ``alpha``.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Connected mesh, every vertex in a face.
+    F : (m, 3) int64
+    alpha : float
+        Raw regularization weight (alpha_hat * sqrt(total area)).
+    symmetric : bool
+        Optimize over symmetric U with the column constraints only (see the module docstring).
+    gap_tol, feas_tol : float
+        Clarabel's duality-gap (absolute and relative) and feasibility tolerances.
+
+    Returns
+    -------
+    (n, n) float64
+    """
+    n = len(V)
+    areas, _ = rs.face_geometry(V, F)
+    grads = rs.gradient_matrices(V, F)
+    A_V = rs.vertex_areas(V, F)
+    U = cp.Variable((n, n), symmetric=symmetric)
+    sides = [U] if symmetric else [U, U.T]
+    constraints = [U >= 0, cp.diag(U) == 0]
+    energy = 0
+    weight = np.sqrt(areas)[:, None] * np.sqrt(A_V)[None, :]  # (m, n): sqrt(a_f A_V[j])
+    for side in sides:
+        comps = [Gc @ side for Gc in grads]  # 3 x (m, n): gradient of every column
+        constraints.append(cp.SOC(np.ones(len(F) * n), cp.vstack([cp.vec(c, order="F") for c in comps]), axis=0))
+        energy = energy + sum(cp.sum_squares(cp.multiply(weight, c)) for c in comps)
+    if symmetric:
+        energy = 2 * energy  # the row term equals the column term for symmetric U
+    objective = -A_V @ U @ A_V + 0.5 * alpha * energy
+    problem = cp.Problem(cp.Minimize(objective), constraints)
+    problem.solve(solver=cp.CLARABEL, tol_gap_abs=gap_tol, tol_gap_rel=gap_tol, tol_feas=feas_tol, max_iter=500)
+    if problem.status != cp.OPTIMAL:
+        raise RuntimeError(f"expected status optimal, got {problem.status}")
+    return np.asarray(U.value)

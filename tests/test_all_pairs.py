@@ -1,0 +1,173 @@
+"""All-pairs distance matrices (Algorithm 2) and the batched single-source alternative.
+
+References: an interior-point solve of the all-pairs problem (tests/all_pairs_reference.py,
+cvxpy + Clarabel, full problem with row and column constraints, not symmetrized) stored in
+tests/data/all_pairs_bumpy42.npz (a perturbed 42-vertex icosphere, alpha_hat 0.03 and 0.1);
+a dense numpy transcription of the full ADMM of SPEC section 5 (all nine variables) for the
+claim that the symmetric half-state ADMM reproduces it iterate by iteration.
+"""
+
+import os
+
+import numpy as np
+import pytest
+
+import meshes
+import reference_solver as rs
+import warp_regdist as wrd
+import warp_regdist.all_pairs_admm as ap
+from warp_regdist.cli import main
+from warp_regdist.metrics import triangle_inequality_violations
+
+
+DATA = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
+TIGHT = dict(eps_rel=4e-6, eps_rel_consensus=4e-7, eps_rel_dual=4e-4, cg_fraction=1e-8, max_iterations=10_000)
+
+
+@pytest.fixture(scope="module")
+def bumpy42():
+    d = np.load(DATA)
+    return wrd.Mesh(d["vertices"], d["faces"]), {0.03: d["U_003"], 0.1: d["U_01"]}
+
+
+@pytest.mark.parametrize("alpha_hat", [0.03, 0.1])
+def test_matches_conic_reference(bumpy42, alpha_hat, device):
+    mesh, refs = bumpy42
+    expected = refs[alpha_hat]
+    res = wrd.all_pairs(mesh, alpha_hat, device=device, **TIGHT)
+    assert res.converged
+    assert np.abs(res.distance - expected).max() <= 1e-3 * expected.max()
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_defaults_within_one_percent_symmetric_by_construction(bumpy42, dtype, device):
+    mesh, refs = bumpy42
+    res = wrd.all_pairs(mesh, 0.03, device=device, dtype=dtype)
+    U = res.distance
+    assert res.converged and res.iterations == len(res.history)
+    assert np.array_equal(U, U.T) and np.all(np.diag(U) == 0) and U.min() >= 0
+    assert np.abs(U - refs[0.03]).max() <= 0.01 * refs[0.03].max()
+    assert np.all(res.residuals <= res.tolerance)
+
+
+def _full_admm(V, F, alpha_hat, iterations):
+    """SPEC section 5 verbatim on dense arrays (X, R, U, Z, Q, Y, S, H, K), exact linear solves."""
+    tol = wrd.tolerances
+    a_f, _ = rs.face_geometry(V, F)
+    G = rs.gradient_matrices(V, F)
+    A_V = rs.vertex_areas(V, F)
+    A, n = a_f.sum(), len(V)
+    L = np.sqrt(A)
+    alpha = alpha_hat * L
+    Wd = sum(Gc.T @ (a_f[:, None] * Gc.toarray()) for Gc in G)
+    M = np.diag(A_V)
+
+    def grad(X):
+        return np.stack([Gc @ X for Gc in G])  # (3, m, n)
+
+    def div(Y):
+        return sum(Gc.T @ (a_f[:, None] * Yc) for Gc, Yc in zip(G, Y))
+
+    def proj(P):
+        return P / np.maximum(1.0, np.linalg.norm(P, axis=0))
+
+    X, R, U, H, K = (np.zeros((n, n)) for _ in range(5))
+    Z, Q, Y, S = (np.zeros((3, len(F), n)) for _ in range(4))
+    a = tol.relaxation
+    for k in range(iterations):
+        rho = L * min(tol.rho_max, tol.rho0 * 2.0 ** (k / tol.rho_doubling))
+        rho2 = 25.0 * rho * rho / (L * A)
+        K2 = (alpha + rho) * Wd + rho2 * M
+        b = 0.5 * A_V[:, None] * np.ones(n)
+        X = np.linalg.solve(K2, b - div(Y) + rho * div(Z) - M @ H + rho2 * M @ U)
+        R = np.linalg.solve(K2, b - div(S) + rho * div(Q) - M @ K + rho2 * M @ U.T)
+        hX, hR = a * grad(X) + (1 - a) * Z, a * grad(R) + (1 - a) * Q
+        Z, Q = proj(Y / rho + hX), proj(S / rho + hR)
+        Y, S = Y + rho * (hX - Z), S + rho * (hR - Q)
+        Xh, Rh = a * X + (1 - a) * U, a * R + (1 - a) * U.T
+        U = np.maximum(0.0, 0.5 * ((H + K.T) / rho2 + Xh + Rh.T))
+        np.fill_diagonal(U, 0.0)
+        H, K = H + rho2 * (Xh - U), K + rho2 * (Rh - U.T)
+    return U
+
+
+def test_half_state_admm_reproduces_full_admm(device):
+    V, F = meshes.icosphere(1, 1.0)
+    V = meshes.perturbed(V, F, 0.1, seed=5)
+    expected = _full_admm(V, F, 0.05, 40)
+    with pytest.warns(wrd.ConvergenceWarning):
+        res = wrd.all_pairs(wrd.Mesh(V, F), 0.05, device=device, max_iterations=40, cg_fraction=1e-12)
+    assert res.iterations == 40
+    assert np.abs(res.distance - expected).max() <= 1e-8 * expected.max()
+    assert np.abs(expected - expected.T).max() <= 1e-10 * expected.max()  # the full ADMM stays symmetric too
+
+
+def test_rows_close_to_single_source_with_twice_alpha(device):
+    V, F = meshes.icosphere(2, 1.0)  # 162 vertices
+    mesh = wrd.Mesh(V, F)
+    U = wrd.all_pairs(mesh, 0.03, device=device).distance
+    rows2 = wrd.distance_matrix(mesh, 0.06, symmetrize=False, device=device)
+    rows1 = wrd.distance_matrix(mesh, 0.03, sources=np.arange(0, 162, 4), symmetrize=False, device=device)
+    assert np.array_equal(U, U.T)
+    err2 = np.abs(U - rows2).max() / U.max()
+    err1 = np.abs(U[::4] - rows1).max() / U.max()
+    assert err2 <= 0.035 and err2 < err1
+
+
+def test_triangle_inequality_violations_drop_as_alpha_grows(bumpy42):
+    mesh, _ = bumpy42
+    share = [triangle_inequality_violations(wrd.all_pairs(mesh, a, device="cpu").distance) for a in (0.01, 0.1, 0.3)]
+    assert share[0] > share[1] > share[2]
+
+
+def test_distance_matrix_rows_and_symmetrization(bumpy42):
+    mesh, _ = bumpy42
+    src = np.array([3, 17, 40])
+    rows = wrd.distance_matrix(mesh, 0.03, sources=src, symmetrize=False, batch_size=2)
+    single = wrd.DistanceSolver(mesh, 0.03).solve_many([[s] for s in src]).distance.T
+    assert np.array_equal(rows, single)
+    sym = wrd.distance_matrix(mesh, 0.03, sources=src, batch_size=2)
+    block = rows[:, src]
+    assert np.array_equal(sym[:, src], 0.5 * (block + block.T))
+    full = wrd.distance_matrix(mesh, 0.03)
+    assert np.array_equal(full, full.T) and full.shape == (42, 42)
+
+
+def test_refuses_what_does_not_fit(bumpy42, monkeypatch):
+    mesh, _ = bumpy42
+    monkeypatch.setattr(ap, "_available_memory", lambda device: 1000)
+    with pytest.raises(ValueError, match=r"needs .* GB, got 0\.00 GB available"):
+        wrd.all_pairs(mesh, 0.03, device="cpu")
+    device_bytes, host_bytes = ap.memory_estimate(10_000, 20_000, "float32")
+    assert device_bytes + host_bytes < 12e9  # a 10k-vertex surface fits in float32
+
+
+def test_bad_input(bumpy42):
+    mesh, _ = bumpy42
+    V, F = mesh.vertices, mesh.elements
+    two = wrd.Mesh(np.vstack([V, V + 5.0]), np.vstack([F, F + len(V)]))
+    with pytest.raises(ValueError, match="connected"):
+        wrd.all_pairs(two)
+    for kwargs, message in ((dict(alpha_hat=-1.0), "alpha_hat"), (dict(dtype="float16"), "dtype"),
+                            (dict(max_iterations=0), "max_iterations")):
+        with pytest.raises(ValueError, match=message):
+            wrd.all_pairs(mesh, **kwargs)
+    with pytest.raises(ValueError, match="distinct"):
+        wrd.distance_matrix(mesh, sources=[1, 1])
+
+
+def test_cli_allpairs(tmp_path, capsys):
+    d = np.load(DATA)
+    path = tmp_path / "bumpy.off"
+    with open(path, "w") as f:
+        f.write(f"OFF\n{len(d['vertices'])} {len(d['faces'])} 0\n")
+        f.writelines(f"{x!r} {y!r} {z!r}\n" for x, y, z in d["vertices"].tolist())
+        f.writelines(f"3 {a} {b} {c}\n" for a, b, c in d["faces"])
+    out = tmp_path / "U.npy"
+    assert main(["allpairs", str(path), "--alpha-hat", "0.03", "--output", str(out), "--device", "cpu"]) == 0
+    U = np.load(out)
+    assert np.abs(U - d["U_003"]).max() <= 0.01 * d["U_003"].max()
+    err = capsys.readouterr().err
+    assert "iteration" in err and "r1" in err
+    assert main(["allpairs", str(tmp_path / "missing.off"), "--output", str(out)]) == 2
+    assert capsys.readouterr().err.startswith("warp-regdist: error:")
