@@ -54,7 +54,8 @@ from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
-from .solver import ConvergenceWarning, check_alpha_hat, parse_device
+from .regularizers import check_weight
+from .solver import ConvergenceWarning, parse_device
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -259,7 +260,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
     if mesh.element_dim != 2:
         raise ValueError(f"expected a triangle mesh, got {mesh.n_elements} tetrahedra")
-    alpha_hat = check_alpha_hat(alpha_hat)
+    alpha_hat = check_weight(alpha_hat, "alpha_hat")
     if dtype not in SCALARS:
         raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
     if not (isinstance(max_iterations, (int, np.integer)) and max_iterations >= 1):

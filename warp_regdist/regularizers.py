@@ -24,7 +24,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["REGULARIZERS", "Regularizer", "build_regularizer"]
+__all__ = ["REGULARIZERS", "Regularizer", "build_regularizer", "check_weight"]
 
 REGULARIZERS = ("dirichlet", "vector_field", "hessian")
 
@@ -88,6 +88,17 @@ def _on_pattern(matrix, pattern):
     return sp.csr_matrix((values, pattern.indices, pattern.indptr), shape=pattern.shape)
 
 
+def check_weight(value, name):
+    """``value`` as a float; ValueError unless it is a finite real >= 0 (alpha_hat, beta_hat)."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected a real {name} >= 0, got {value!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"expected a finite {name} >= 0, got {value!r}")
+    return value
+
+
 def _vector_field_matrix(operators, field, beta):
     """W_V = G^T M_F (I + beta Vhat) G with Vhat_f = V_f V_f^T (field (m, 3))."""
     m = field.shape[0]
@@ -147,13 +158,7 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
         if vector_field is None:
             raise ValueError("expected a vector_field (m, 3) for regularizer 'vector_field', got None")
         field = _check_field(vector_field, mesh.n_elements)
-        beta = 10.0 if beta_hat is None else beta_hat
-        try:
-            beta = float(beta)
-        except (TypeError, ValueError):
-            raise ValueError(f"expected a real beta_hat >= 0, got {beta_hat!r}") from None
-        if not math.isfinite(beta) or beta < 0:
-            raise ValueError(f"expected a finite beta_hat >= 0, got {beta_hat!r}")
+        beta = check_weight(10.0 if beta_hat is None else beta_hat, "beta_hat")
         W = _vector_field_matrix(operators, field, beta)
         alpha, factor = alpha_hat * L, 1.0
     else:

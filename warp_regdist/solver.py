@@ -33,7 +33,7 @@ from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
-from .regularizers import build_regularizer
+from .regularizers import build_regularizer, check_weight
 from .tolerances import tolerances
 
 __all__ = ["DistanceSolver", "DistanceResult", "ConvergenceWarning"]
@@ -72,17 +72,6 @@ def parse_device(device):
         raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
 
 
-def check_alpha_hat(alpha_hat):
-    """``alpha_hat`` as a float; ValueError unless it is a finite real >= 0."""
-    try:
-        alpha_hat = float(alpha_hat)
-    except (TypeError, ValueError):
-        raise ValueError(f"expected a real alpha_hat >= 0, got {alpha_hat!r}") from None
-    if not math.isfinite(alpha_hat) or alpha_hat < 0:
-        raise ValueError(f"expected a finite alpha_hat >= 0, got {alpha_hat!r}")
-    return alpha_hat
-
-
 class DistanceSolver:
     """Precompute once, solve for many source sets (cf. potpourri3d's solver objects).
 
@@ -116,7 +105,7 @@ class DistanceSolver:
                  device=None, dtype="float64"):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
-        alpha_hat = check_alpha_hat(alpha_hat)
+        alpha_hat = check_weight(alpha_hat, "alpha_hat")
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
         wp.init()
