@@ -17,7 +17,6 @@ so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
 """
 
 import argparse
-import csv
 import os
 import resource
 import sys
@@ -33,6 +32,7 @@ import meshes  # noqa: E402
 import warp as wp  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from warp_regdist.all_pairs_admm import RESIDUAL_NAMES  # noqa: E402
+from report import write_csv  # noqa: E402
 from warp_regdist.metrics import symmetry_error, triangle_inequality_violations  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs.csv")
@@ -100,12 +100,7 @@ def main():
                        max_diff_vs_all_pairs_pct=round(100 * float(np.abs(D - U).max() / U.max()), 3))
             rows.append(row)
             print(row, flush=True)
-    os.makedirs(os.path.dirname(RESULTS), exist_ok=True)
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-    with open(RESULTS, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(rows, RESULTS)
     print(f"wrote {RESULTS}")
 
 

@@ -15,7 +15,6 @@ source, alpha_hat and heat t side by side).  Needs the ``compare`` extra (potpou
 """
 
 import argparse
-import csv
 import io
 import os
 import statistics
@@ -31,6 +30,7 @@ sys.path.insert(0, HERE)
 import evaluation_meshes  # noqa: E402
 import meshes  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
+from report import write_csv  # noqa: E402
 from warp_regdist import metrics  # noqa: E402
 
 ALPHA_HATS = (0.0, 0.01, 0.05, 0.1)
@@ -144,14 +144,6 @@ def markdown(rows):
                      f"| {r['solve_s']:.3f} s{it} | {r['max_error_pct']:.2f} | {r['mean_error_pct']:.2f} "
                      f"| {r['smoothness']:.2e} |")
     return "\n".join(lines)
-
-
-def write_csv(rows, path):
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 def tile(cells, path, row_labels, titles, cell_width=2.2):

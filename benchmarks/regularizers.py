@@ -12,7 +12,6 @@ tolerances / 10 (max over vertices, % of the maximal distance). Times are single
 after one warm-up (noisy on a shared machine).
 """
 
-import csv
 import os
 import sys
 import warnings
@@ -21,6 +20,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+
+from report import write_csv  # noqa: E402
 
 MAX_ITERATIONS = 3000
 
@@ -68,11 +69,7 @@ def main():
         it = f"{r['admm_iterations']}" + ("" if r["converged"] else " (not converged)")
         print(f"| {r['regularizer']} | {r['alpha_hat']:g} | {r['rho']} | {it} | {r['cg_iterations']} | "
               f"{r['cg_per_admm']:.1f} | {r['seconds']:.2f} s | {r['difference_percent']:.3f}% |")
-    os.makedirs(os.path.join(HERE, "results"), exist_ok=True)
-    with open(os.path.join(HERE, "results", "regularizers.csv"), "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(rows, os.path.join(HERE, "results", "regularizers.csv"))
 
 
 if __name__ == "__main__":

@@ -28,7 +28,8 @@ sys.path.insert(0, HERE)
 
 import evaluation_meshes as em  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
-from compare import RESULTS, heat_distance, regularized_distance, warm_up, write_csv  # noqa: E402
+from compare import RESULTS, heat_distance, regularized_distance, warm_up  # noqa: E402
+from report import write_csv  # noqa: E402
 
 REFERENCE_N = 40
 SCALE = 10.0

@@ -12,11 +12,8 @@ spot, and the scipy baseline run to tight tolerances (eps / 100) elsewhere.
 """
 
 import argparse
-import csv
-import json
 import os
 import resource
-import subprocess
 import sys
 import time
 
@@ -24,6 +21,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+
+from report import markdown_table, print_result, run_child, write_csv  # noqa: E402
 
 CASES = {  # name: (mesh, source, alpha_hat, repeats)
     "spot_rr": ("spot_rr", 2272, 0.05, 5),
@@ -114,7 +113,7 @@ def main():
     if args.case:  # child process
         row = run_batch(int(args.case.split("_")[1])) if args.case.startswith("batch_") else \
             run_case(args.case, baseline=args.case != "sphere_1M")
-        print("RESULT " + json.dumps(row))
+        print_result(row)
         return
     names = ["spot_rr", "bent_pipe_closed_lr"]
     if not args.quick:
@@ -125,29 +124,14 @@ def main():
     rows = []
     for name in names:
         print(f"running {name} ...", file=sys.stderr, flush=True)
-        out = subprocess.run([sys.executable, __file__, "--case", name], capture_output=True, text=True)
-        line = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
-        if not line:
-            print(out.stdout[-2000:], out.stderr[-2000:], file=sys.stderr)
-            continue
-        rows.append(json.loads(line[0][7:]))
-        print("  " + json.dumps(rows[-1]), file=sys.stderr, flush=True)
-    os.makedirs(args.out, exist_ok=True)
+        row = run_child(__file__, name)
+        if row is not None:
+            rows.append(row)
     path = os.path.join(args.out, "single_source.csv")
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(rows, path)
     for group in ([r for r in rows if not r["case"].startswith("batch")], [r for r in rows if r["case"].startswith("batch")]):
-        if not group:
-            continue
-        cols = list(dict.fromkeys(k for r in group for k in r))
-        print("| " + " | ".join(cols) + " |")
-        print("|" + "---|" * len(cols))
-        for r in group:
-            print("| " + " | ".join(f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols) + " |")
-        print()
+        if group:
+            print(markdown_table(group) + "\n")
     print(f"wrote {path}")
 
 

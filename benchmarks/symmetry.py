@@ -27,7 +27,8 @@ sys.path.insert(0, HERE)
 
 import evaluation_meshes as em  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
-from compare import RESULTS, heat_solver, warm_up, write_csv  # noqa: E402
+from compare import RESULTS, heat_solver, warm_up  # noqa: E402
+from report import write_csv  # noqa: E402
 from warp_regdist import metrics  # noqa: E402
 
 N_CUBE = 8

@@ -16,18 +16,18 @@ table and writes benchmarks/results/volumetric.csv.
 """
 
 import argparse
-import csv
-import json
 import os
 import resource
-import subprocess
 import sys
 import time
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests"))
+sys.path.insert(0, os.path.join(HERE, "..", "tests"))  # meshes.cube_tets
+sys.path.append(HERE)  # report (after tests/: benchmarks/ has its own meshes.py)
+
+from report import markdown_table, print_result, run_child, write_csv  # noqa: E402
 
 SIZES = (12, 26, 55)  # 10,368 / 105,456 / 998,250 tets
 ALPHA_HAT = 0.05
@@ -93,31 +93,19 @@ def main():
         profile_case(args.profile)
         return
     if args.case:  # child process
-        print("RESULT " + json.dumps(run_case(args.case)))
+        print_result(run_case(args.case))
         return
     rows = []
     for n in args.sizes:
         print(f"running n = {n} ({6 * n ** 3} tets) ...", file=sys.stderr, flush=True)
-        out = subprocess.run([sys.executable, __file__, "--case", str(n)], capture_output=True, text=True)
-        line = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
-        if not line:
-            print(out.stdout[-2000:], out.stderr[-2000:], file=sys.stderr)
-            continue
-        rows.append(json.loads(line[0][7:]))
-        print("  " + json.dumps(rows[-1]), file=sys.stderr, flush=True)
+        row = run_child(__file__, n)
+        if row is not None:
+            rows.append(row)
     if not rows:
         return
-    os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, "volumetric.csv")
-    cols = list(rows[0])
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=cols)
-        w.writeheader()
-        w.writerows(rows)
-    print("| " + " | ".join(cols) + " |")
-    print("|" + "---|" * len(cols))
-    for r in rows:
-        print("| " + " | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
+    write_csv(rows, path)
+    print(markdown_table(rows))
     print()
     print("fitted exponent of time vs tets (time ~ tets^p): "
           f"setup p = {_exponent(rows, 'setup_s'):.2f}, solve p = {_exponent(rows, 'solve_s'):.2f}, "
