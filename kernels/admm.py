@@ -1,6 +1,6 @@
 """Per-element and per-vertex kernels of one ADMM iteration (SPEC section 4), column-batched.
 
-Shapes: u (n, nb); z, y, dz (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
+Shapes: u (n, nb); z, y (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
 dtype V. ``basis`` (m, k) vec3 are the hat-function gradients, ``vol`` (m,) the element
 volumes a_e, k = d + 1 vertices per element.
 """
@@ -27,12 +27,12 @@ def admm_kernels(scalar, W, k):
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
                      u: wp.array2d(dtype=V), rho: wp.array(dtype=V), relaxation: scalar,
-                     z: wp.array3d(dtype=V), y: wp.array3d(dtype=V), dz: wp.array3d(dtype=V),
+                     z: wp.array3d(dtype=V), y: wp.array3d(dtype=V),
                      acc: wp.array2d(dtype=V), chunk: int, m: int):
         """Fused over-relaxed z- and y-steps on a chunk of elements, per column lane:
 
             g = (G u)_e,  h = a g + (1 - a) z_old,  z_e = Proj_{|.|<=1}(y_e / rho + h),
-            y_e += rho (h - z_e),  dz_e = z_e - z_old,
+            y_e += rho (h - z_e),
         and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, GU2, Z2.
         """
         c, b = wp.tid()
@@ -71,9 +71,6 @@ def admm_kernels(scalar, W, k):
             z[e, 0, b] = zx
             z[e, 1, b] = zy
             z[e, 2, b] = zz
-            dz[e, 0, b] = zx - ox
-            dz[e, 1, b] = zy - oy
-            dz[e, 2, b] = zz - oz
             a = vol[e]
             rx = gx - zx
             ry = gy - zy
@@ -88,12 +85,13 @@ def admm_kernels(scalar, W, k):
     @wp.kernel(enable_backward=False, module=module)
     def vertex_divergence(offsets: wp.array(dtype=wp.int32), incident: wp.array(dtype=wp.int32),
                           weights: wp.array(dtype=V3), mask: wp.array2d(dtype=V), y: wp.array3d(dtype=V), z: wp.array3d(dtype=V),
-                          dz: wp.array3d(dtype=V), Dy: wp.array2d(dtype=V), Dz: wp.array2d(dtype=V),
+                          Dy: wp.array2d(dtype=V), Dz: wp.array2d(dtype=V),
                           acc: wp.array2d(dtype=V), chunk: int, n: int):
         """Gather form of D = G^T M_F:  (D w)_i = sum over elements e at i of a_e basis[e, l_i] . w_e,
         with the products a_e basis[e, l_i] precomputed per (vertex, element) pair in ``weights``.
 
-        Writes Dy = D y and Dz = D z; adds |mask D dz|^2 and |mask D y|^2 to acc rows S2, DY2.
+        Writes Dy = D y and Dz = D z; adds |mask D (z - z_old)|^2 = |mask (D z - Dz_old)|^2 (Dz holds
+        the previous iteration's D z on entry) and |mask D y|^2 to acc rows S2, DY2.
         """
         c, b = wp.tid()
         s2 = V()
@@ -101,7 +99,6 @@ def admm_kernels(scalar, W, k):
         for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
             dy = V()
             dzi = V()
-            ddz = V()
             p = offsets[i]
             pe = offsets[i + 1]
             while p < pe:
@@ -109,12 +106,11 @@ def admm_kernels(scalar, W, k):
                 w = weights[p]
                 dy += w[0] * y[e, 0, b] + w[1] * y[e, 1, b] + w[2] * y[e, 2, b]
                 dzi += w[0] * z[e, 0, b] + w[1] * z[e, 1, b] + w[2] * z[e, 2, b]
-                ddz += w[0] * dz[e, 0, b] + w[1] * dz[e, 1, b] + w[2] * dz[e, 2, b]
                 p += 1
+            mk = mask[i, b]
+            ddz = wp.cw_mul(mk, dzi - Dz[i, b])
             Dy[i, b] = dy
             Dz[i, b] = dzi
-            mk = mask[i, b]
-            ddz = wp.cw_mul(mk, ddz)
             dy = wp.cw_mul(mk, dy)
             s2 += wp.cw_mul(ddz, ddz)
             d2 += wp.cw_mul(dy, dy)

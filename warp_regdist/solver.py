@@ -184,7 +184,6 @@ class DistanceSolver:
                 Dy=wp.zeros((n, nb), dtype=V, device=dev), Dz=wp.zeros((n, nb), dtype=V, device=dev),
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
-                dz=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
                                self.scalar, W, nb, dev, preconditioner=self._hierarchy),
@@ -214,7 +213,7 @@ class DistanceSolver:
             free[:, j] = reach
             free[src, j] = 0.0
         ws["mask"].assign(free.reshape(n, nb, W))
-        for name in ("u", "z", "y", "dz", "Dy", "Dz"):
+        for name in ("u", "z", "y", "Dy", "Dz"):
             ws[name].zero_()
         L = self.operators.length_scale
         A = self.operators.total_volume
@@ -329,14 +328,14 @@ class _ColumnBatch:
         elem_dim = ((m + chunk - 1) // chunk, blocks)
         vert_dim = ((n + chunk - 1) // chunk, blocks)
         self.divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
-            sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"], ws["y"], ws["z"], ws["dz"],
+            sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"], ws["y"], ws["z"],
             ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
         self.u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
             sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.shift), sc(self.scale),
             ws["rhs"], chunk, n])
         self.element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
             sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"], sc(tolerances.relaxation),
-            ws["z"], ws["y"], ws["dz"], ws["acc"], chunk, m])
+            ws["z"], ws["y"], ws["acc"], chunk, m])
         ws["pcg"].set_active_blocks(blocks)
 
     def compact(self, slot_col, slot_values):
@@ -359,8 +358,8 @@ class _ColumnBatch:
             s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
             d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
             nb = ws["u"].shape[1]
-            # Dy and Dz too: this iteration's divergence is already computed and the u-step reads it
-            for name in ("u", "mask", "z", "y", "dz", "Dy", "Dz"):
+            # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
+            for name in ("u", "mask", "z", "y", "Dy", "Dz"):
                 a = ws[name]
                 a2 = a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
                 wp.launch(self.move, ((a2.shape[0] + chunk - 1) // chunk,), device=dev,
