@@ -8,6 +8,8 @@ iterations, ~0.3-0.8% apart at the default tolerances; a batch that mixes column
 unreferenced-vertex check gives finite or NaN values there.
 """
 
+import os
+
 import numpy as np
 import pytest
 from scipy.optimize import OptimizeWarning
@@ -131,3 +133,15 @@ def test_batch_columns_match_single_solves_across_blocks(device):
         res = solver.solve(s)
         assert many.iterations[k] == res.iterations, k
         assert _rel(many.distance[:, k], res.distance) <= 1e-12, k
+
+
+def test_tightened_tolerances_converge(device):
+    # 10x tighter than the defaults on the 42-vertex bumpy sphere: with u-steps solved only
+    # to a fixed tolerance, sources 1, 4 and 7 stalled with r ~2x above eps_pri for 5000
+    # iterations (a warm start already meeting the tolerance left u unchanged)
+    data = np.load(os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz"))
+    solver = wrd.DistanceSolver(wrd.Mesh(data["vertices"], data["faces"]), alpha_hat=0.05, device=device)
+    with wrd.tolerances.override(eps_rel=2.5e-5, eps_rel_dual=0.015, max_iterations=2000):
+        res = solver.solve_many([[1], [4], [7]])
+    assert res.converged.all(), res.iterations
+    assert res.iterations.max() < 600, res.iterations

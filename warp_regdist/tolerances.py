@@ -40,6 +40,13 @@ class Tolerances:
         min(cg_fraction |D y|, eps_dual / 10) (|D y| is the scale of the dual residual s),
         or below cg_rtol times the right-hand side. 1e-3 keeps the iterates as with exact solves; looser
         (1e-1) saves 40% of the CG work but stalls on small meshes at tight primal tolerances.
+    cg_primal_fraction : float
+        The u-step's residual is also kept below cg_primal_fraction times the last primal
+        residual r (measured in the units of (alpha + rho) W_D u). Without it, a warm start
+        that already meets the fixed tolerance leaves u unchanged, and with tolerances 10x
+        tighter than the defaults r stalled above its tolerance for 3 of 8 sources on a
+        42-vertex sphere; with it they all converged, with 20x fewer CG iterations. At the
+        defaults the term never binds on the meshes we measured (same iterates).
     cg_max_iterations : int
         PCG iteration cap per ADMM iteration.
     degenerate_element : float
@@ -56,6 +63,7 @@ class Tolerances:
     rho_max: float = 8.0
     rho_doubling: float = 30.0
     cg_fraction: float = 1e-3
+    cg_primal_fraction: float = 0.1
     cg_rtol: float = 1e-10
     cg_max_iterations: int = 500
     degenerate_element: float = 1e-12
