@@ -53,6 +53,20 @@ def test_several_sources_matches_conic_solver(device):
     _check_against_reference(V, F, [0, 17, 170, 310], 0.05, device)
 
 
+@pytest.mark.parametrize("alpha_hat", [0.3, 2.0])
+def test_no_active_gradient_constraint_converges_at_defaults(device, alpha_hat):
+    # boundary sources on a coarse square: |G u| < 1 on every face, so the multiplier y is 0
+    # and a dual test relative to |D y| alone never held (10,000 iterations, no convergence)
+    V, F = meshes.square_grid(12)
+    mesh = wrd.Mesh(V, F)
+    sources = wrd.boundary_vertices(mesh)
+    res = wrd.DistanceSolver(mesh, alpha_hat=alpha_hat, device=device).solve(sources)
+    assert res.converged and res.iterations < 100, res.iterations
+    areas, _ = rs.face_geometry(V, F)
+    expected = rs.solve_reference(V, F, sources, alpha_hat * np.sqrt(areas.sum()))
+    assert np.abs(res.distance - expected).max() / expected.max() <= 1e-3
+
+
 # ---------------------------------------------------------------- operators
 
 

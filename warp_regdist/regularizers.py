@@ -52,13 +52,6 @@ class Regularizer:
         (``tolerances.cg_fraction``): 1, or 1/20 for the Hessian. Without the CG factor the
         inexact u-steps kept the Hessian's primal residual above its tolerance (3,000
         iterations without converging on a flat square).
-    dual_floor : bool
-        Measure the dual residual against max(|D y|, |A_V|) (free vertices) instead of
-        |D y| (Hessian). At the optimum A_V = alpha W u + D y on the free vertices, and the
-        multiplier y is nonzero wherever |G u| = 1. With W_D or W_V the constraint is always
-        active near the sources (their Green's functions have unbounded gradients there), but
-        a smooth Hessian-regularized u may meet |G u| <= 1 nowhere, so y -> 0 and a test
-        relative to |D y| alone would never hold.
     rho_factors : (float, float)
         Factors on ``tolerances.rho0`` and ``tolerances.rho_max``: (1, 1), or (1, 8) for the
         Hessian (penalty up to 64 sqrt(A)): measured on spot (alpha_hat 1e-4, 1e-3, 0.05)
@@ -72,7 +65,6 @@ class Regularizer:
     weights: sp.csr_matrix | None
     stiffness: sp.csr_matrix | None
     tolerance_factor: float
-    dual_floor: bool
     rho_factors: tuple
 
     def system(self, rho):
@@ -153,7 +145,7 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
         raise ValueError(f"expected {given} only with regularizer 'vector_field', got it with {name!r}")
     L = operators.length_scale
     if name == "dirichlet":
-        return Regularizer(name, alpha_hat * L, None, None, 1.0, False, (1.0, 1.0))
+        return Regularizer(name, alpha_hat * L, None, None, 1.0, (1.0, 1.0))
     if name == "vector_field":
         if vector_field is None:
             raise ValueError("expected a vector_field (m, 3) for regularizer 'vector_field', got None")
@@ -174,6 +166,5 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
     WD = operators.stiffness
     pattern = (abs(W) + abs(WD) + sp.identity(WD.shape[0], format="csr")).tocsr()
     pattern.sort_indices()
-    hessian = name == "hessian"
-    return Regularizer(name, alpha, _on_pattern(W, pattern), _on_pattern(WD, pattern), factor, hessian,
-                       (1.0, 8.0) if hessian else (1.0, 1.0))
+    return Regularizer(name, alpha, _on_pattern(W, pattern), _on_pattern(WD, pattern), factor,
+                       (1.0, 8.0) if name == "hessian" else (1.0, 1.0))

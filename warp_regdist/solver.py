@@ -223,18 +223,21 @@ class DistanceSolver:
 
         eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
         eps_pri_abs = math.sqrt(3 * m) * eps_abs * math.sqrt(A)
-        # per slot: (eps_abs sqrt(n_free) A, |mask A_V|), the latter the floor of the dual scale
-        # |mask D y| where y may vanish (see Regularizer.dual_floor)
+        # per slot: (eps_abs sqrt(n_free) A, |mask A_V|). The dual residual is measured against
+        # max(|mask D y|, |mask A_V|): at the optimum A_V = alpha W u + D y on the free vertices,
+        # and y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat, boundary sources
+        # on a coarse mesh, a smooth Hessian-regularized u), so |D y| alone can vanish and a
+        # test relative to it never holds.
         slot_values = np.stack([np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A,
-                                np.sqrt(np.square(self.operators.vertex_volumes) @ free) * self.regularizer.dual_floor])
-        eps_dual_abs, force = slot_values
+                                np.sqrt(np.square(self.operators.vertex_volumes) @ free)])
+        eps_dual_abs, load_norm = slot_values
 
         iterations = np.full(k, -1)
         out = np.zeros((n, k))
         r_out, s_out = np.zeros(k), np.zeros(k)
         live = nb * W
         r = s = np.zeros(live)
-        eps_dual, dual_scale = eps_dual_abs + eps_rel_dual * force, eps_dual_abs + force
+        eps_dual, dual_scale = eps_dual_abs + eps_rel_dual * load_norm, eps_dual_abs + load_norm
         cg_total = 0
         system_rho = None
         it = 0
@@ -246,7 +249,7 @@ class DistanceSolver:
                 r = np.sqrt(acc[R2])
                 s = rho * np.sqrt(acc[S2])
                 eps_pri = eps_pri_abs + eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
-                dy = np.maximum(np.sqrt(acc[DY2]), force[:live])
+                dy = np.maximum(np.sqrt(acc[DY2]), load_norm[:live])
                 dual_scale = eps_dual_abs[:live] + dy
                 eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
                 done = (r <= eps_pri) & (s <= eps_dual)  # <=: a source-only column has r = s = eps = 0
