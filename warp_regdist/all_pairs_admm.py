@@ -230,9 +230,11 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         ADMM iteration cap (a ConvergenceWarning is issued when it is reached).
     eps_rel, eps_rel_consensus, eps_rel_dual : float
         Relative stopping tolerances: r1 <= eps_rel max(|S_F G X S_V|, |S_F Z S_V|),
-        rx1 <= eps_rel_consensus min(|S_V X S_V|, |S_V U S_V|), s1 <= eps_rel_dual |D Y M_V|,
-        sx <= eps_rel_dual |S_V H S_V| (r2, s2, rx2 equal r1, s1, rx1 by symmetry), plus
-        the absolute terms of SPEC section 5 with ``tolerances.eps_abs`` (0 by default).
+        rx1 <= eps_rel_consensus min(|S_V X S_V|, |S_V U S_V|),
+        s1 <= eps_rel_dual max(|D Y M_V|, |A_V| |A_V| / 2), sx <= eps_rel_dual max(|S_V H S_V|, A / 2)
+        (r2, s2, rx2 equal r1, s1, rx1 by symmetry; the floors are the scale of the X-step's
+        load), plus the absolute terms of SPEC section 5 with ``tolerances.eps_abs`` (0 by
+        default). All must be finite and > 0.
         The defaults stopped 0.2-0.6% of the maximal distance away from the exact minimizer
         on the meshes we measured (README).
     rho2_factor : float
@@ -261,6 +263,11 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if mesh.element_dim != 2:
         raise ValueError(f"expected a triangle mesh, got {mesh.n_elements} tetrahedra")
     alpha_hat = check_weight(alpha_hat, "alpha_hat")
+    for name, value in (("eps_rel", eps_rel), ("eps_rel_consensus", eps_rel_consensus),
+                        ("eps_rel_dual", eps_rel_dual), ("rho2_factor", rho2_factor), ("cg_fraction", cg_fraction)):
+        check_weight(value, name, positive=True)
+    if progress is not None and not callable(progress):
+        raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     if dtype not in SCALARS:
         raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
     if not (isinstance(max_iterations, (int, np.integer)) and max_iterations >= 1):
@@ -300,6 +307,10 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     cg_total = 0
     converged = False
     pairs = None
+    # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and
+    # M_V H balance in the X-step; Y (and H) vanish where no gradient constraint is active,
+    # which can be everywhere (a large alpha_hat), and a test relative to them alone never holds.
+    load_norm = 0.5 * np.linalg.norm(state.ops.vertex_volumes) * np.linalg.norm(w)
     it = 0
     for it in range(max_iterations + 1):
         rho_old, rho2_old = state.rho, state.rho2
@@ -312,9 +323,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
             rx = math.sqrt(pairs[RX2])
             sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
             eps_p = tol.eps_abs * math.sqrt(3 * m) * A + eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
-            eps_d = tol.eps_abs * math.sqrt(n) * A * A + eps_rel_dual * math.sqrt((w * w) @ dy2)
+            eps_d = tol.eps_abs * math.sqrt(n) * A * A + eps_rel_dual * max(math.sqrt((w * w) @ dy2), load_norm)
             eps_x = tol.eps_abs * math.sqrt(n) * A ** 1.5 + eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2]))
-            eps_dx = tol.eps_abs * math.sqrt(n) * A + eps_rel_dual * math.sqrt(pairs[H2])
+            eps_dx = tol.eps_abs * math.sqrt(n) * A + eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
             res = np.array([r1, r1, s1, s1, rx, rx, sx])
             eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
             history.append(res / np.maximum(eps, 1e-300))

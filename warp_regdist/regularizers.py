@@ -80,14 +80,21 @@ def _on_pattern(matrix, pattern):
     return sp.csr_matrix((values, pattern.indices, pattern.indptr), shape=pattern.shape)
 
 
-def check_weight(value, name):
-    """``value`` as a float; ValueError unless it is a finite real >= 0 (alpha_hat, beta_hat)."""
+def check_weight(value, name, positive=False):
+    """``value`` as a float; ValueError unless it is a finite real >= 0 (> 0 if ``positive``).
+
+    Used for alpha_hat, beta_hat and the all-pairs tolerances; booleans and strings are refused
+    (True would silently mean 1).
+    """
+    bound = "> 0" if positive else ">= 0"
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise ValueError(f"expected a real {name} {bound}, got {value!r}")
     try:
         value = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"expected a real {name} >= 0, got {value!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(f"expected a finite {name} >= 0, got {value!r}")
+        raise ValueError(f"expected a real {name} {bound}, got {value!r}") from None
+    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ValueError(f"expected a finite {name} {bound}, got {value!r}")
     return value
 
 
