@@ -259,3 +259,36 @@ def test_non_integer_sources(square_solver, sources):
 def test_bad_solver_arguments(kwargs, pattern):
     with pytest.raises(ValueError, match=pattern):
         wrd.DistanceSolver(wrd.Mesh(SQUARE, SQUARE_F), **kwargs)
+
+
+def test_obj_materials_and_groups_keep_the_files_numbering(in_tmp):
+    # trimesh splits an OBJ by material and renumbers the vertices; the file's order must stay
+    text = ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvn 0 0 1\no A\nusemtl a\nf 1/1/1 2/1/1 3/1/1\n"
+            "o B\ng side\nusemtl b\ns 1\nf 2//1 4//1 3//1\nl 1 4\n")
+    mesh = wrd.load_mesh(_write("obj", text))
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+
+
+def test_obj_negative_indices_are_relative_to_the_face_line(in_tmp):
+    mesh = wrd.load_mesh(_write("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 1 1 0\nf 2 -1 3\n"))
+    assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+
+
+def test_obj_index_zero_is_refused(in_tmp):
+    with pytest.raises(wrd.MeshError, match="line 4: expected 1-based"):
+        wrd.load_mesh(_write("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"))
+
+
+def test_stl_corners_merged_in_order_of_first_appearance(in_tmp):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(1)
+    path = _write("stl", trimesh.exchange.stl.export_stl(sphere))
+    mesh = wrd.load_mesh(path)
+    assert mesh.n_vertices == 42 and mesh.n_elements == 80
+    assert (mesh.components() == 0).all()
+    corners = sphere.vertices[sphere.faces].reshape(-1, 3)  # the file's corner order
+    _, first = np.unique(corners, axis=0, return_index=True)
+    assert np.allclose(mesh.vertices, corners[np.sort(first)], atol=1e-6)
+    assert np.allclose(mesh.vertices[mesh.faces], sphere.vertices[sphere.faces], atol=1e-6)

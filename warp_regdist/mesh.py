@@ -7,7 +7,6 @@ an index out of range, a NaN coordinate or a zero-volume element.
 from __future__ import annotations
 
 import os
-import re
 import warnings
 
 import numpy as np
@@ -158,20 +157,17 @@ def boundary_vertices(mesh):
     return np.unique(key[counts[inv.ravel()] == 1]).astype(np.int64)
 
 
-_POLYGON_LINE = {
-    ".obj": re.compile(rb"^[ \t]*f((?:[ \t]+\S+){4,})[ \t]*\r?$", re.M),
-}
-
-
 _VOLUME_FORMATS = {".msh": ("gmsh", "ansys"), ".vtk": ("vtk",), ".vtu": ("vtu",), ".mesh": ("medit",)}  # meshio
-_SURFACE_FORMATS = (".obj", ".off", ".ply", ".stl")  # read by trimesh
+_SURFACE_FORMATS = (".off", ".ply", ".stl")  # read by trimesh (OBJ by _read_obj)
 
 
 def load_mesh(path):
     """Read a triangle or tetrahedral mesh file, keeping the file's vertex order.
 
-    Triangle surfaces: OBJ, OFF, PLY, STL (trimesh); polygons with more than three
-    corners are fan-triangulated, with a warning that says how many. Tetrahedral (or
+    Triangle surfaces: OBJ (:func:`_read_obj`), OFF, PLY, STL (trimesh); polygons with more
+    than three corners are fan-triangulated, with a warning that says how many. STL stores
+    every triangle's corners separately: corners with identical coordinates are merged into
+    one vertex, numbered in order of first appearance. Tetrahedral (or
     triangle) meshes: gmsh ``.msh`` (ASCII or binary, versions 2.2 and 4.1; also ANSYS
     Fluent ``.msh``), VTK ``.vtk`` / ``.vtu``, Medit ``.mesh`` (meshio),
     see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
@@ -184,14 +180,17 @@ def load_mesh(path):
     if ext in _VOLUME_FORMATS:
         V, T = _read_volume_file(path, ext)
         return Mesh(V, T)
+    if ext == ".obj":
+        V, F, n_poly = _read_obj(path)
+        _warn_polygons(path, n_poly)
+        return Mesh(V, F)
     if ext not in _SURFACE_FORMATS:
         raise MeshError(f"expected a mesh file ending in .obj, .off, .ply, .stl, .msh, .vtk, .vtu or .mesh, "
                         f"got {path!r}")
     import trimesh
 
     try:
-        kwargs = {"maintain_order": True} if ext == ".obj" else {}
-        loaded = trimesh.load(path, process=False, force="mesh", **kwargs)
+        loaded = trimesh.load(path, process=False, force="mesh")
     except ImportError:  # trimesh tries optional text decoders on binary garbage
         raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file") from None
     except Exception as exc:  # trimesh raises many types for malformed files
@@ -202,10 +201,68 @@ def load_mesh(path):
         raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
     if V.shape[0] == 0:
         raise MeshError(f"expected vertices in {path!r}, got none")
-    n_poly = _count_polygons(path, ext)
-    if n_poly:
-        warnings.warn(f"{path}: {n_poly} polygon faces with more than 3 corners were triangulated", stacklevel=2)
+    if ext == ".stl":
+        V, F = _merge_equal_vertices(V, F)
+    _warn_polygons(path, _count_off_polygons(path) if ext == ".off" else 0)
     return Mesh(V, F)
+
+
+def _warn_polygons(path, count):
+    if count:
+        warnings.warn(f"{path}: {count} polygon faces with more than 3 corners were triangulated", stacklevel=3)
+
+
+def _merge_equal_vertices(V, F):
+    """One vertex per distinct position, numbered by first appearance in V (for STL)."""
+    V = np.asarray(V, dtype=np.float64) + 0.0  # -0.0 -> 0.0
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return V[first[order]], rank[inverse.ravel()][np.asarray(F)]
+
+
+def _read_obj(path):
+    """Vertices and triangles of a Wavefront OBJ file, in the file's order.
+
+    Reads ``v x y z`` and ``f i j k ...`` lines (corners ``i``, ``i/t``, ``i//n`` or
+    ``i/t/n``; 1-based, negative = relative to the vertices read so far) and ignores
+    everything else (texture coordinates, normals, groups, materials, lines). Polygons
+    are fan-triangulated. Unlike trimesh, materials and groups neither split nor
+    renumber the vertices.
+
+    Returns
+    -------
+    V : (n, 3) ndarray of float64
+    F : (m, 3) ndarray of int64 (indices may be out of range: :class:`Mesh` checks them)
+    polygons : int, number of faces with more than three corners
+    """
+    with open(path, "rb") as f:
+        lines = f.read().splitlines()
+    coords, faces, polygons = [], [], 0
+    try:
+        for number, line in enumerate(lines, 1):
+            tokens = line.split()
+            if not tokens or tokens[0] not in (b"v", b"f"):
+                continue
+            if len(tokens) < 4:
+                raise ValueError(f"line {number}: expected 3 or more values, got {line[:60]!r}")
+            if tokens[0] == b"v":
+                coords.append(b" ".join(tokens[1:4]))
+                continue
+            corners = [int(t.split(b"/", 1)[0]) for t in tokens[1:]]
+            if min(corners) < 0 or 0 in corners:
+                if 0 in corners:
+                    raise ValueError(f"line {number}: expected 1-based or negative vertex indices, got 0")
+                corners = [c if c > 0 else len(coords) + c + 1 for c in corners]
+            polygons += len(corners) > 3
+            faces.extend((corners[0], corners[k], corners[k + 1]) for k in range(1, len(corners) - 1))
+        V = np.array(b" ".join(coords).split(), dtype=np.float64).reshape(-1, 3)
+    except ValueError as exc:
+        raise MeshError(f"could not read mesh file {path!r}: {exc}") from None
+    if not faces:
+        raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
+    return V, np.array(faces, dtype=np.int64) - 1, polygons
 
 
 def _read_volume_file(path, ext):
@@ -261,22 +318,17 @@ def _read_volume_file(path, ext):
     return V, T
 
 
-def _count_polygons(path, ext):
-    """Number of faces with more than three corners in an OBJ or OFF file (0 for other formats)."""
-    if ext == ".obj":
-        with open(path, "rb") as f:
-            return len(_POLYGON_LINE[".obj"].findall(f.read()))
-    if ext == ".off":
-        with open(path, "rb") as f:
-            tokens = [ln.split(b"#")[0].split() for ln in f.read().splitlines()]
-        tokens = [t for t in tokens if t]
-        if not tokens or not tokens[0][0].upper().endswith(b"OFF"):
-            return 0
-        head = tokens[0][1:] or tokens[1]
-        start = 1 if tokens[0][1:] else 2
-        try:
-            nv, nf = int(head[0]), int(head[1])
-            return sum(1 for t in tokens[start + nv:start + nv + nf] if int(t[0]) > 3)
-        except (ValueError, IndexError):
-            return 0
-    return 0
+def _count_off_polygons(path):
+    """Number of faces with more than three corners in an OFF file."""
+    with open(path, "rb") as f:
+        tokens = [ln.split(b"#")[0].split() for ln in f.read().splitlines()]
+    tokens = [t for t in tokens if t]
+    if not tokens or not tokens[0][0].upper().endswith(b"OFF"):
+        return 0
+    head = tokens[0][1:] or tokens[1]
+    start = 1 if tokens[0][1:] else 2
+    try:
+        nv, nf = int(head[0]), int(head[1])
+        return sum(1 for t in tokens[start + nv:start + nv + nf] if int(t[0]) > 3)
+    except (ValueError, IndexError):
+        return 0
