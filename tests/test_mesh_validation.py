@@ -1,6 +1,7 @@
 """Bad inputs give a wrd.MeshError / ValueError whose message names the problem, and
 load_mesh keeps the file's vertices exactly as written (order, duplicates, unused ones)."""
 
+import re
 import warnings
 
 import numpy as np
@@ -247,9 +248,26 @@ def test_non_integer_sources(square_solver, sources):
         square_solver.solve(sources)
 
 
+@pytest.mark.parametrize("sources", [3, np.int64(3), None, [[0], [1, 2]]])
+def test_scalar_or_nested_source_set(square_solver, sources):
+    with pytest.raises(ValueError, match=r"expected source set 0 as a (flat )?list of vertex indices"):
+        square_solver.solve(sources)
+    with pytest.raises(ValueError, match=r"expected source set 0 as a list"):
+        square_solver.solve_many([0, 1])  # one set per vertex is [[0], [1]]
+
+
+@pytest.mark.parametrize("sources, shown", [([np.inf], "inf"), ([1e20], "1e+20"),
+                                            (np.array([2**63 + 3], np.uint64), str(2**63 + 3))])
+def test_out_of_range_error_shows_the_given_value(square_solver, sources, shown):
+    with pytest.raises(ValueError, match=r"in \[0, 3\] in source set 0, got " + re.escape(shown)):
+        square_solver.solve(sources)
+
+
 @pytest.mark.parametrize(
     "kwargs, pattern",
     [
+        (dict(alpha_hat=True), r"expected a real alpha_hat"),
+        (dict(alpha_hat="0.05"), r"expected a real alpha_hat"),
         (dict(alpha_hat=-0.1), r"(?i)alpha"),
         (dict(alpha_hat=np.nan), r"(?i)alpha"),
         (dict(dtype="float16"), r"(?i)dtype|float"),

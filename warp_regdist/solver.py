@@ -139,16 +139,23 @@ class DistanceSolver:
         n = self.mesh.n_vertices
         if isinstance(sources, (str, bytes)):
             raise ValueError(f"expected source set {column} as vertex indices, got the string {sources!r}")
-        arr = np.asarray(list(sources) if not isinstance(sources, np.ndarray) else sources)
+        if not hasattr(sources, "__iter__") or isinstance(sources, np.ndarray) and sources.ndim == 0:
+            raise ValueError(f"expected source set {column} as a list of vertex indices, got {sources!r} "
+                             "(one vertex i is the set [i]; solve_many takes a list of such sets)")
+        try:
+            arr = np.asarray(list(sources) if not isinstance(sources, np.ndarray) else sources)
+        except (TypeError, ValueError):  # ragged nesting, non-iterable items
+            raise ValueError(f"expected source set {column} as a flat list of vertex indices, "
+                             f"got {repr(sources)[:80]}") from None
         if arr.size == 0:
             raise ValueError(f"expected at least one source vertex in source set {column}, got none")
         if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or
                                      (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)))):
             raise ValueError(f"expected integer vertex indices in source set {column}, got {arr.ravel()[:5].tolist()}")
-        arr = arr.astype(np.int64).ravel()
         bad = arr[(arr < 0) | (arr >= n)]
         if bad.size:
-            raise ValueError(f"expected source vertex indices in [0, {n - 1}] in source set {column}, got {bad[0]}")
+            raise ValueError(f"expected source vertex indices in [0, {n - 1}] in source set {column}, got {bad.ravel()[0].item()!r}")
+        arr = arr.astype(np.int64).ravel()
         labels = self._labels
         comps = np.unique(labels[arr])
         reachable = np.isin(labels, comps[comps >= 0])
