@@ -166,6 +166,8 @@ def test_bad_input(bumpy42):
             wrd.all_pairs(mesh, **kwargs)
     with pytest.raises(ValueError, match="distinct"):
         wrd.distance_matrix(mesh, sources=[1, 1])
+    with pytest.raises(ValueError, match="expected symmetrize as True or False"):
+        wrd.distance_matrix(mesh, sources=[1, 2], symmetrize="no")
 
 
 def test_cli_allpairs(tmp_path, capsys):

@@ -37,6 +37,7 @@ def meshes(tmp_path_factory):
     grid = trimesh.Trimesh(np.stack([x.ravel(), y.ravel(), np.zeros(k * k)], 1), faces, process=False)
     grid.export(folder / "grid.ply")
     (folder / "garbage.off").write_text("OFF\n3 1 0\n0 0 0\n1 0\nnot a mesh\n")
+    (folder / "d.npy").mkdir()  # a directory where a file is expected
     return folder
 
 
@@ -138,6 +139,10 @@ BAD_INPUTS = {
     "unavailable device": (["distance", "{m}/sphere.off", "--sources", "0", "--device", "cuda:99", "--output",
                             "{t}/u.npy"], "cuda:99"),
     "demo output is a file": (["demo", "--output", "{m}/sphere.off"], "sphere.off"),
+    "output is a directory": (["distance", "{m}/sphere.off", "--sources", "0", "--output", "{m}/d.npy"],
+                              "expected --output as a file name, got the directory"),
+    "allpairs output is a directory": (["allpairs", "{m}/sphere.off", "--output", "{m}/d.npy"],
+                                       "expected --output as a file name, got the directory"),
 }
 
 

@@ -1,6 +1,7 @@
 """Bad inputs give a wrd.MeshError / ValueError whose message names the problem, and
 load_mesh keeps the file's vertices exactly as written (order, duplicates, unused ones)."""
 
+import os
 import re
 import warnings
 
@@ -291,6 +292,11 @@ def test_obj_materials_and_groups_keep_the_files_numbering(in_tmp):
 def test_obj_negative_indices_are_relative_to_the_face_line(in_tmp):
     mesh = wrd.load_mesh(_write("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 1 1 0\nf 2 -1 3\n"))
     assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+
+
+def test_bytes_path(in_tmp):
+    path = _write("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert wrd.load_mesh(os.fsencode(path)).n_elements == 1
 
 
 def test_obj_index_zero_is_refused(in_tmp):

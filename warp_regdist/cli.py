@@ -175,6 +175,10 @@ def _check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise ValueError(f"expected {option} in an existing directory, got {path!r} (no directory {folder!r})")
+    if os.path.isdir(path):
+        raise ValueError(f"expected {option} as a file name, got the directory {path!r}")
+    if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise ValueError(f"expected {option} in a writable place, got {path!r} (permission denied)")
 
 
 def _parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
@@ -287,7 +291,11 @@ def _regularization(args: argparse.Namespace, mesh) -> dict:
     if ext == ".npy":
         field = np.load(args.directions, allow_pickle=False)
     elif ext == ".csv":
-        rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
+        try:
+            rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
+        except ValueError:
+            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in "
+                             f"{args.directions!r}") from None
         if rows.shape[1] != 4 or not np.all(rows[:, 0] == np.round(rows[:, 0])):
             raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' (integer face), got {rows.shape[1]} "
                              f"columns in {args.directions!r}")

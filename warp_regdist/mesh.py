@@ -173,7 +173,7 @@ def load_mesh(path):
     see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
     for a missing or unreadable file and for every defect :class:`Mesh` checks.
     """
-    path = os.fspath(path)
+    path = os.fsdecode(os.fspath(path))
     if not os.path.isfile(path):
         raise MeshError(f"expected an existing mesh file, got {path!r} (no such file)")
     ext = os.path.splitext(path)[1].lower()

@@ -44,6 +44,8 @@ def distance_matrix(mesh, alpha_hat=0.03, sources=None, symmetrize=True, device=
     (k, n) ndarray of float64
         D[r, i] = distance from sources[r] to vertex i (+inf where unreachable).
     """
+    if not isinstance(symmetrize, (bool, np.bool_)):
+        raise ValueError(f"expected symmetrize as True or False, got {symmetrize!r}")
     if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
         raise ValueError(f"expected batch_size as an integer >= 1, got {batch_size!r}")
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype)
