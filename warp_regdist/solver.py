@@ -18,7 +18,9 @@ iteration for W_V, 8-35 for W_H, where a hierarchy built for alpha W_H + rho W_D
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
+import os
 import sys
 import time
 import warnings
@@ -29,6 +31,8 @@ from scipy.optimize import OptimizeResult, OptimizeWarning
 
 from .kernels.admm import DY2, GU2, R2, S2, Z2, admm_kernels
 from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width
+from .kernels.multigrid import multigrid_kernels
+from .kernels.pcg import pcg_kernels
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
@@ -94,6 +98,11 @@ class DistanceSolver:
         Warp device ("cpu", "cuda", "cuda:0"); None: Warp's default device.
     dtype : {"float64", "float32"}
         Precision of the solver's arrays (float32 halves memory; agreement ~1e-3).
+    workers : int or None
+        CPU threads for :meth:`solve_many`: a CPU kernel launch runs on one core, so the
+        source sets are split into up to ``workers`` independent batches (whole lane blocks)
+        solved in parallel threads. None: the cores available to the process. Ignored on
+        CUDA (one batch fills the GPU). Each column's result does not depend on it.
 
     Examples
     --------
@@ -102,14 +111,19 @@ class DistanceSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64"):
+                 device=None, dtype="float64", workers=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
+        if workers is None:
+            workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
         wp.init()
         self.device = parse_device(device)
+        self.workers = 1 if self.device.is_cuda else int(workers)
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
@@ -178,16 +192,47 @@ class DistanceSolver:
         sets = [self._source_mask(s, j) for j, s in enumerate(source_sets)]
         if not sets:
             raise ValueError("expected at least one source set, got none")
-        return self._admm(sets, verbose)
+        t0 = time.perf_counter()
+        k = len(sets)
+        W = lane_width(self.scalar, k)
+        blocks = -(-k // W)
+        # whole lane blocks per worker, as even as possible
+        bounds = [min(k, W * (blocks * i // min(self.workers, blocks))) for i in range(min(self.workers, blocks) + 1)]
+        groups = [sets[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        workspaces = [self._workspace(W, -(-len(g) // W), i) for i, g in enumerate(groups)]
+        self._workspaces = {key: ws for key, ws in self._workspaces.items()
+                            if any(ws is w for w in workspaces)}  # memory scales with the batch: keep these only
+        if len(groups) == 1:
+            parts = [self._admm(groups[0], workspaces[0], verbose)]
+        else:
+            self._load_modules(W)  # compile or load once, before the threads launch kernels
+            with concurrent.futures.ThreadPoolExecutor(len(groups)) as pool:
+                parts = list(pool.map(lambda gw: self._admm(*gw, verbose), zip(groups, workspaces)))
+        res = DistanceResult(
+            {key: np.concatenate([p[key] for p in parts], axis=-1)
+             for key in ("distance", "iterations", "converged", "primal_residual", "dual_residual")},
+            cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0)
+        if not res.converged.all():
+            warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
+                          f"{np.count_nonzero(~res.converged)} of {k} source sets", ConvergenceWarning, stacklevel=2)
+        return res
 
     # ------------------------------------------------------------------ ADMM
-    def _workspace(self, W, nb):
-        key = (W, nb)
+    def _load_modules(self, W):
+        """Load the kernel modules of lane width W on the solver's device (not thread-safe)."""
+        k = self.mesh.elements.shape[1]
+        for kernels in (admm_kernels(self.scalar, W, k), lane_kernels(self.scalar, W),
+                        pcg_kernels(self.scalar, W), multigrid_kernels(self.scalar, W)):
+            module = next(v for v in vars(kernels).values() if isinstance(v, wp.Kernel)).module
+            wp.load_module(module, device=self.device)
+
+    def _workspace(self, W, nb, worker=0):
+        key = (W, nb, worker)
         if key not in self._workspaces:
             V = lane_type(self.scalar, W)
             n, m, dev = self.mesh.n_vertices, self.mesh.n_elements, self.device
             ws = dict(
-                u=wp.zeros((n, nb), dtype=V, device=dev), mask=wp.zeros((n, nb), dtype=V, device=dev),
+                width=W, u=wp.zeros((n, nb), dtype=V, device=dev), mask=wp.zeros((n, nb), dtype=V, device=dev),
                 Dy=wp.zeros((n, nb), dtype=V, device=dev), Dz=wp.zeros((n, nb), dtype=V, device=dev),
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
@@ -195,18 +240,18 @@ class DistanceSolver:
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
                                self.scalar, W, nb, dev, preconditioner=self._hierarchy),
             )
-            self._workspaces = {key: ws}  # keep one workspace: memory scales with the batch
+            self._workspaces[key] = ws
         return self._workspaces[key]
 
-    def _admm(self, sets, verbose):
+    def _admm(self, sets, ws, verbose):
+        """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks)."""
         t0 = time.perf_counter()
         tol = tolerances
         factor = self.regularizer.tolerance_factor
         k = len(sets)
         n, m = self.mesh.n_vertices, self.mesh.n_elements
-        W = lane_width(self.scalar, k)
-        nb = -(-k // W)
-        ws = self._workspace(W, nb)
+        nb = ws["u"].shape[1]
+        W = ws["width"]
         # u-step right-hand side divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
         shift, scale = (self.alpha, 1.0) if self._scaled else (1.0, 0.0)
         batch = _ColumnBatch(self, ws, W, nb, shift, scale)
@@ -275,8 +320,9 @@ class DistanceSolver:
                 if np.all(iterations >= 0) or it == tol.max_iterations:
                     break
                 if new.size:
-                    live = batch.compact(slot_col, slot_values)
-                    r, s, eps_dual, dual_scale = r[:live], s[:live], eps_dual[:live], dual_scale[:live]
+                    per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
+                    live = batch.compact(slot_col, slot_values, per_slot)
+                    r, s, eps_dual, dual_scale = per_slot[:, :live]
                 rho = L * min(rho_max, rho0 * 2.0 ** (it / tol.rho_doubling))
                 ws["rho"].assign(np.full((nb, W), rho))
             if not self._scaled and rho != system_rho:
@@ -301,9 +347,6 @@ class DistanceSolver:
             u[~reach, j] = np.inf
             u[src, j] = 0.0
         converged = iterations >= 0
-        if not converged.all():
-            warnings.warn(f"ADMM did not converge in {tol.max_iterations} iterations for "
-                          f"{np.count_nonzero(~converged)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
             primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0)
@@ -350,11 +393,12 @@ class _ColumnBatch:
             ws["z"], ws["y"], ws["acc"], chunk, m])
         ws["pcg"].set_active_blocks(blocks)
 
-    def compact(self, slot_col, slot_values):
+    def compact(self, slot_col, *slot_values):
         """Move running columns out of the last blocks when they fit in fewer; returns the live slots.
 
-        ``slot_col`` (slots,) maps slot -> column (-1: free) and ``slot_values`` (c, slots)
-        holds per-slot host values; both are permuted in place like the device state.
+        ``slot_col`` (slots,) maps slot -> column (-1: free) and each of ``slot_values``
+        (c, >= live slots) holds per-slot host values; all are permuted in place like the
+        device state.
         """
         W, live = self.W, self.blocks * self.W
         running = np.flatnonzero(slot_col[:live] >= 0)
@@ -377,6 +421,7 @@ class _ColumnBatch:
                 wp.launch(self.move, ((a2.shape[0] + chunk - 1) // chunk,), device=dev,
                           inputs=[a2, s_arr, d_arr, src.size, chunk, a2.shape[0]])
             slot_col[dst], slot_col[src] = slot_col[src], -1
-            slot_values[:, dst] = slot_values[:, src]
+            for values in slot_values:
+                values[:, dst] = values[:, src]
         self._record(blocks)
         return keep
