@@ -19,7 +19,7 @@ __all__ = ["distance_matrix"]
 
 
 def distance_matrix(mesh, alpha_hat=0.03, sources=None, symmetrize=True, device=None, dtype="float64",
-                    batch_size=256):
+                    batch_size=256, workers=None):
     """Single-source distances from many vertices, stacked as rows.
 
     Parameters
@@ -34,8 +34,8 @@ def distance_matrix(mesh, alpha_hat=0.03, sources=None, symmetrize=True, device=
     symmetrize : bool
         Replace D[r, sources[c]] and D[c, sources[r]] by their mean for every pair of rows,
         so the (k, k) block of source columns (all of D when sources is None) is symmetric.
-    device, dtype
-        As for :class:`DistanceSolver`.
+    device, dtype, workers
+        As for :class:`DistanceSolver` (each batch is split among ``workers`` CPU threads).
     batch_size : int
         Sources per batched ADMM (memory grows linearly with it).
 
@@ -48,7 +48,7 @@ def distance_matrix(mesh, alpha_hat=0.03, sources=None, symmetrize=True, device=
         raise ValueError(f"expected symmetrize as True or False, got {symmetrize!r}")
     if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
         raise ValueError(f"expected batch_size as an integer >= 1, got {batch_size!r}")
-    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype)
+    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, workers=workers)
     n = mesh.n_vertices
     if sources is None:
         sources = np.arange(n)
