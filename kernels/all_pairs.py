@@ -145,8 +145,9 @@ def all_pairs_kernels(scalar, W):
     @wp.kernel(enable_backward=False, module=module)
     def consensus_step(X: wp.array2d(dtype=V), U: wp.array2d(dtype=V), H: wp.array2d(dtype=V),
                        vertex_vol: wp.array(dtype=V), rho2: scalar, relaxation: scalar,
-                       acc: wp.array(dtype=scalar), n: int):
-        """U- and H-steps on the tile pair (I, J), (J, I) of W x W entries, I <= J:
+                       acc: wp.array(dtype=scalar), I0: int, n: int):
+        """U- and H-steps on the tile pair (I, J), (J, I) of W x W entries, I <= J, I = I0 + first
+        thread index (disjoint ranges of I may run in parallel, each with its own acc):
 
             Xh = a X + (1 - a) U_old,
             U_ij = max(0, (1/2) ((H_ij + H_ji) / rho2 + Xh_ij + Xh_ji)),  U_ii = 0,
@@ -155,6 +156,7 @@ def all_pairs_kernels(scalar, W):
         (U - U_old)^2, H^2 (new H) into acc[RX2, X2, U2, SX2, H2].
         """
         I, J = wp.tid()
+        I += I0
         if I > J:
             return
         XT = load_transposed(X, J * W, I, n)

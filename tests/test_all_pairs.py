@@ -8,6 +8,7 @@ claim that the symmetric half-state ADMM reproduces it iterate by iteration.
 """
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -58,6 +59,21 @@ def test_large_alpha_without_active_constraints_converges(bumpy42, device):
     assert res.converged and res.iterations < 300, res.iterations
     U = res.distance
     assert np.array_equal(U, U.T) and U.max() > 0
+
+
+def test_worker_threads_give_the_same_matrix():
+    # 642 vertices: two threads share the columns of every step and the consensus tiles
+    V, F = meshes.icosphere(3, 1.0)
+    mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=2), F)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+        one = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=1, device="cpu")
+        two = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=2, device="cpu")
+    assert np.array_equal(one.distance, two.distance) and one.distance.max() > 0
+    # the consensus residuals are float32 sums per thread: summation order differs, not values
+    assert np.allclose(one.history, two.history, rtol=1e-5, atol=0)
+    with pytest.raises(ValueError, match="expected workers as an integer >= 1 or None"):
+        wrd.all_pairs(mesh, workers=0)
 
 
 def _full_admm(V, F, alpha_hat, iterations):

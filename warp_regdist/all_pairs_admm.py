@@ -38,6 +38,7 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
 import os
 import time
@@ -79,7 +80,7 @@ class AllPairsResult(OptimizeResult):
     history : (iterations, 7) ndarray
         Residuals divided by their tolerances at every iteration.
     cg_iterations : int
-        PCG iterations summed over ADMM iterations.
+        PCG iterations summed over ADMM iterations (the largest count among the worker threads).
     seconds : float
     memory_bytes : int
         Estimated footprint of the solver's arrays (device and host).
@@ -116,10 +117,25 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
     return device_bytes, host_bytes
 
 
-class _SymmetricADMM:
-    """State and one iteration of the symmetric all-pairs ADMM (see the module docstring)."""
+def _even_splits(weights, parts):
+    """Bounds b_0 = 0 < ... < b_parts = len(weights) cutting ``weights`` into ``parts`` runs of
+    about equal sums (fewer runs when there are fewer items)."""
+    parts = max(1, min(parts, len(weights)))
+    cum = np.concatenate([[0.0], np.cumsum(weights)])
+    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, parts) / parts)
+    return np.unique(np.concatenate([[0], np.clip(cuts, 1, len(weights) - 1), [len(weights)]])).tolist()
 
-    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor):
+
+class _SymmetricADMM:
+    """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
+
+    On the CPU the column blocks are split into up to ``workers`` parts (at most one per 10^5
+    pairs) run by parallel threads (a CPU launch runs on one core): each part has its own PCG and its own launches of the
+    vertex and element steps on its columns, and the consensus step's tile pairs are split
+    into rows of about equal work. The results do not depend on the split.
+    """
+
+    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers):
         n, m = mesh.n_vertices, mesh.n_elements
         self.n, self.m = n, m
         self.device, self.scalar = device, SCALARS[dtype]
@@ -149,63 +165,100 @@ class _SymmetricADMM:
             wp.zeros((n, nb), dtype=V, device=dev) for _ in range(7))
         self.v = wp.zeros((m, 3, nb), dtype=V, device=dev)
         self.acc = wp.zeros((5, nb), dtype=V, device=dev)
-        self.acc_pairs = wp.zeros(5, dtype=sc, device=dev)
         mass = sp.diags(ops.vertex_volumes)
         self._mass = mass
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
         # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
         K_mid = self._matrix(1.0, rho2_factor * math.sqrt(tolerances.rho0 * tolerances.rho_max) / self.A)
-        self.pcg = BatchedPCG(K_mid, sc, W, nb, dev, preconditioner=smoothed_aggregation(K_mid))
+        hierarchy = smoothed_aggregation(K_mid)
         self.rho_v = 1.0  # the rho that formed v (any value while v = 0)
         self.rho = self.rho2 = None
-        elem_dim = ((m + self.chunk - 1) // self.chunk, nb)
-        vert_dim = ((n + self.chunk - 1) // self.chunk, nb)
         k = self.kern
-        self._vertex = wp.launch(k.vertex_step, vert_dim, device=dev, record_cmd=True, inputs=[
-            self._vertex_volumes, self.mask, sc(1.0), sc(1.0), self.H, self.U, self.DZ_acc, self.DY_acc,
-            self.DZ, self.rhs, self.acc, self.chunk, n])
-        self._element = wp.launch(k.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
-            self._elements, self._basis, self._volumes, self.X, self.v, sc(1.0), sc(1.0),
-            sc(tolerances.relaxation), self.DZ_acc, self.DY_acc, self.acc, self.chunk, m])
-        self._consensus = wp.launch(k.consensus_step, (nb, nb), device=dev, record_cmd=True, inputs=[
-            self.X, self.U, self.H, self._lane_areas, sc(1.0), sc(tolerances.relaxation), self.acc_pairs, n])
+        # threads meet three times per iteration (~0.1 ms each): only worth it from ~10^5 pairs per thread
+        T = 1 if dev.is_cuda else max(1, min(workers, n * n // 100_000))
+        self.blocks = _even_splits(np.ones(nb), T)  # column blocks [b_t, b_t+1) of part t
+        self.rows = _even_splits(nb - np.arange(nb), T)  # consensus tile rows I (row I has nb - I pairs)
+        self.pcgs, self._vertex, self._element, self._consensus = [], [], [], []
+        for b0, b1 in zip(self.blocks[:-1], self.blocks[1:]):
+            cols = slice(b0, b1)
+            self.pcgs.append(BatchedPCG(K_mid, sc, W, b1 - b0, dev, preconditioner=hierarchy))
+            elem_dim = ((m + self.chunk - 1) // self.chunk, b1 - b0)
+            vert_dim = ((n + self.chunk - 1) // self.chunk, b1 - b0)
+            self._vertex.append(wp.launch(k.vertex_step, vert_dim, device=dev, record_cmd=True, inputs=[
+                self._vertex_volumes, self.mask[:, cols], sc(1.0), sc(1.0), self.H[:, cols], self.U[:, cols],
+                self.DZ_acc[:, cols], self.DY_acc[:, cols], self.DZ[:, cols], self.rhs[:, cols],
+                self.acc[:, cols], self.chunk, n]))
+            self._element.append(wp.launch(k.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
+                self._elements, self._basis, self._volumes, self.X[:, cols], self.v[:, :, cols], sc(1.0), sc(1.0),
+                sc(tolerances.relaxation), self.DZ_acc[:, cols], self.DY_acc[:, cols], self.acc[:, cols],
+                self.chunk, m]))
+        self.acc_pairs = wp.zeros((len(self.rows) - 1, 5), dtype=sc, device=dev)
+        for t, (i0, i1) in enumerate(zip(self.rows[:-1], self.rows[1:])):
+            self._consensus.append(wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
+                self.X, self.U, self.H, self._lane_areas, sc(1.0), sc(tolerances.relaxation), self.acc_pairs[t],
+                i0, n]))
+        self._pool = concurrent.futures.ThreadPoolExecutor(len(self.pcgs)) if len(self.pcgs) > 1 else None
+
+    def close(self):
+        """Stop the worker threads."""
+        if self._pool is not None:
+            self._pool.shutdown()
+
+    def _each(self, work, count):
+        """[work(t) for t in range(count)], in the worker threads when there are several."""
+        if self._pool is None or count == 1:
+            return [work(t) for t in range(count)]
+        return list(self._pool.map(work, range(count)))
 
     def _matrix(self, stiffness_weight, mass_weight):
         return (stiffness_weight * self.ops.stiffness + mass_weight * self._mass).tocsr()
 
     def set_penalties(self, rho, rho2):
         if (rho, rho2) != (self.rho, self.rho2):
-            self.pcg.set_matrix(self._matrix(self.alpha + rho, rho2))
+            K2 = self._matrix(self.alpha + rho, rho2)
+            for pcg in self.pcgs:
+                pcg.set_matrix(K2)
             self.rho, self.rho2 = rho, rho2
 
     def right_hand_side(self):
         """rhs of the X-step and D Z; returns per-column |D(Z - Z_old)|^2 and |D Y|^2 (nb W,)."""
         sc = self.scalar
         self.acc.zero_()
-        for name, value in (("rho", self.rho), ("rho2", self.rho2)):
-            self._vertex.set_param_by_name(name, sc(value))
-        self._vertex.launch()
+        for launch in self._vertex:
+            for name, value in (("rho", self.rho), ("rho2", self.rho2)):
+                launch.set_param_by_name(name, sc(value))
+        self._each(lambda t: self._vertex[t].launch(), len(self._vertex))
         acc = self.acc.numpy().reshape(5, -1)
         return acc[S2].astype(np.float64), acc[DY2].astype(np.float64)
 
-    def solve_x(self, atol, rtol, max_iterations):
-        it, _ = self.pcg.solve(self.rhs, self.X, self.mask, rtol, max_iterations, atol)
-        return it
-
-    def element_and_consensus(self):
-        """z/y-step then U/H-step; returns (per-column R2, GX2, Z2 sums (3, nb W), pair sums (5,))."""
+    def x_and_element_steps(self, atol, rtol, max_iterations):
+        """X-step (PCG) then z/y-step of every part; returns the largest PCG iteration count."""
         sc = self.scalar
         self.acc.zero_()
-        self.acc_pairs.zero_()
-        self._element.set_param_by_name("rho_v", sc(self.rho_v))
-        self._element.set_param_by_name("rho", sc(self.rho))
-        self._element.launch()
+        for launch in self._element:
+            launch.set_param_by_name("rho_v", sc(self.rho_v))
+            launch.set_param_by_name("rho", sc(self.rho))
         self.rho_v = self.rho
-        self._consensus.set_param_by_name("rho2", sc(self.rho2))
-        self._consensus.launch()
+        W, b = self.W, self.blocks
+
+        def part(t):
+            cols = slice(b[t], b[t + 1])
+            it, _ = self.pcgs[t].solve(self.rhs[:, cols], self.X[:, cols], self.mask[:, cols], rtol, max_iterations,
+                                       atol[b[t] * W:b[t + 1] * W])
+            self._element[t].launch()
+            return it
+
+        return max(self._each(part, len(self.pcgs)))
+
+    def consensus(self):
+        """U/H-step; returns (per-column R2, GX2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
+        self.acc_pairs.zero_()
+        for launch in self._consensus:
+            launch.set_param_by_name("rho2", self.scalar(self.rho2))
+        self._each(lambda t: self._consensus[t].launch(), len(self._consensus))
         acc = self.acc.numpy().reshape(5, -1)
-        return acc[[R2, GX2, Z2]].astype(np.float64), self.acc_pairs.numpy().astype(np.float64)
+        return acc[[R2, GX2, Z2]].astype(np.float64), self.acc_pairs.numpy().astype(np.float64).sum(axis=0)
 
     def distance(self):
         """U as an (n, n) float64 array (the U-step writes the same value to U_ij and U_ji)."""
@@ -213,7 +266,8 @@ class _SymmetricADMM:
 
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, eps_rel=5e-4,
-              eps_rel_consensus=5e-5, eps_rel_dual=1e-2, rho2_factor=25.0, cg_fraction=1e-3, progress=None):
+              eps_rel_consensus=5e-5, eps_rel_dual=1e-2, rho2_factor=25.0, cg_fraction=1e-3, progress=None,
+              workers=None):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh.
 
     Parameters
@@ -246,6 +300,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     progress : callable or None
         Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
         elapsed seconds, memory bytes).
+    workers : int or None
+        CPU threads that share every step's columns (None: the cores available to the
+        process; ignored on CUDA). The result does not depend on it.
 
     Returns
     -------
@@ -266,6 +323,10 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     for name, value in (("eps_rel", eps_rel), ("eps_rel_consensus", eps_rel_consensus),
                         ("eps_rel_dual", eps_rel_dual), ("rho2_factor", rho2_factor), ("cg_fraction", cg_fraction)):
         check_weight(value, name, positive=True)
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
     if progress is not None and not callable(progress):
         raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     if dtype not in SCALARS:
@@ -297,7 +358,18 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                              + (" (float32 halves it)" if dtype == "float64" else ""))
     memory = device_bytes + host_bytes
 
-    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor)
+    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, int(workers))
+    try:
+        return _run(state, t0, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
+                    cg_fraction, progress)
+    finally:
+        state.close()
+
+
+def _run(state, t0, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor, cg_fraction,
+         progress):
+    """The ADMM iterations of :func:`all_pairs` on ``state``; returns the AllPairsResult."""
+    n, m = state.n, state.m
     tol = tolerances
     A, L = state.A, state.L
     w = state.column_area
@@ -337,11 +409,11 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
             if it == max_iterations:
                 break
         atol = cg_fraction * (np.sqrt(dy2) + 0.5 * np.linalg.norm(state.ops.vertex_volumes))
-        cg_total += state.solve_x(atol, tol.cg_rtol, tol.cg_max_iterations)
-        cols, pairs = state.element_and_consensus()
+        cg_total += state.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
+        cols, pairs = state.consensus()
     if not converged:
         warnings.warn(f"all-pairs ADMM did not converge in {max_iterations} iterations "
-                      f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning, stacklevel=2)
+                      f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning, stacklevel=3)
     return AllPairsResult(distance=state.distance(), iterations=it, converged=converged, residuals=res,
                           tolerance=eps, history=np.array(history).reshape(-1, 7), cg_iterations=cg_total,
                           seconds=time.perf_counter() - t0, memory_bytes=memory)
