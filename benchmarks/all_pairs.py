@@ -3,6 +3,7 @@
     python benchmarks/all_pairs.py                         # cat_rr, float32 and float64, baseline
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline
     python benchmarks/all_pairs.py --reference-scale 0.2   # also a run at tolerances x 0.2 (slow)
+    python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 thread vs all cores
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -56,6 +57,8 @@ def main():
     parser.add_argument("--no-baseline", action="store_true")
     parser.add_argument("--reference-scale", type=float, default=None)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--workers", type=int, nargs="+", default=[0],
+                        help="CPU threads of each all_pairs run (0: all cores; several values: one run each)")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
@@ -70,10 +73,11 @@ def main():
     for dtype in args.dtypes:  # warm the kernel cache (all_pairs and the single-source solver)
         wrd.all_pairs(small, args.alpha_hat, device=args.device, dtype=dtype, max_iterations=2)
         wrd.distance_matrix(small, args.alpha_hat, sources=[0], device=args.device, dtype=dtype)
-    for dtype in args.dtypes:
-        res = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype=dtype)
+    for dtype, workers in ((d, w) for d in args.dtypes for w in args.workers):
+        res = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype=dtype, workers=workers or None)
         results[dtype] = res.distance
-        row = dict(method="all_pairs", dtype=dtype, n=n, alpha_hat=args.alpha_hat, seconds=round(res.seconds, 2),
+        row = dict(method="all_pairs", dtype=dtype, n=n, alpha_hat=args.alpha_hat,
+                   workers=workers or len(os.sched_getaffinity(0)), seconds=round(res.seconds, 2),
                    iterations=res.iterations, cg_iterations=res.cg_iterations, converged=res.converged,
                    memory_gb=round(res.memory_bytes / 1e9, 3), bytes_per_n2=round(res.memory_bytes / n**2, 1),
                    peak_rss_gb=round(peak_rss_gb(), 2), **quality(res.distance, area))
