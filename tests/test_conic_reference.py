@@ -67,6 +67,27 @@ def test_no_active_gradient_constraint_converges_at_defaults(device, alpha_hat):
     assert np.abs(res.distance - expected).max() / expected.max() <= 1e-3
 
 
+def test_alpha_one_converges_at_defaults(device):
+    # the warm-started u-step met its fixed CG tolerance without moving, and r stalled at
+    # 1.4x its tolerance for 10,000 iterations (cured by tolerances.cg_primal_fraction)
+    V, F = meshes.square_grid(12)
+    res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=1.0, device=device).solve([0])
+    assert res.converged and res.iterations < 200, res.iterations
+    areas, _ = rs.face_geometry(V, F)
+    expected = rs.solve_reference(V, F, [0], np.sqrt(areas.sum()))
+    assert np.abs(res.distance - expected).max() / expected.max() <= 2e-3
+
+
+def test_blown_up_iterate_is_not_reported_as_converged(device):
+    # one needle triangle (height 1e-7): the iteration blows up to ~1e154 while its relative
+    # stopping test holds; the |grad u| <= 1 check must catch it
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1e-7, 0.0]])
+    solver = wrd.DistanceSolver(wrd.Mesh(V, [[0, 1, 2]]), device=device)
+    with pytest.warns(wrd.ConvergenceWarning, match=r"break \|grad u\| <= 1"):
+        res = solver.solve([0])
+    assert not res.converged
+
+
 # ---------------------------------------------------------------- operators
 
 

@@ -212,10 +212,26 @@ class DistanceSolver:
             {key: np.concatenate([p[key] for p in parts], axis=-1)
              for key in ("distance", "iterations", "converged", "primal_residual", "dual_residual")},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0)
-        if not res.converged.all():
+        gradient = self._max_gradient(res.distance)
+        steep = ~(gradient <= tolerances.max_gradient)  # also NaN
+        res.converged &= ~steep
+        if steep.any():
+            warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
+                          f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
+                          "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=2)
+        if not res.converged.all() and (~res.converged & ~steep).any():
             warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
-                          f"{np.count_nonzero(~res.converged)} of {k} source sets", ConvergenceWarning, stacklevel=2)
+                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
+                          stacklevel=2)
         return res
+
+    def _max_gradient(self, distance):
+        """(k,) max over elements of |G u| for each column of ``distance`` (n, k); +inf entries
+        (unreachable components) count as 0, NaN gives NaN."""
+        u = np.where(np.isposinf(distance), 0.0, distance)
+        with np.errstate(over="ignore", invalid="ignore"):
+            g = (self.operators.grad @ u).reshape(self.mesh.n_elements, 3, -1)
+            return np.sqrt(np.square(g).sum(axis=1)).max(axis=0, initial=0.0)
 
     # ------------------------------------------------------------------ ADMM
     def _load_modules(self, W):
