@@ -140,10 +140,31 @@ _FIELD = np.tile([1.0, 0.0, 0.0], (len(_F), 1))
     (dict(regularizer="vector_field", vector_field=_FIELD, beta_hat="big"), "expected a real beta_hat"),
     (dict(regularizer="dirichlet", beta_hat=2.0), "expected beta_hat only with regularizer 'vector_field'"),
     (dict(regularizer="hessian", vector_field=_FIELD), "expected vector_field only with"),
+    (dict(regularizer="vector_field", vector_field=1e200 * _FIELD), r"expected vector_field components <= 1e6"),
+    (dict(regularizer="vector_field", vector_field=_FIELD + 1j), "expected vector_field as a real"),
 ])
 def test_bad_regularizer_settings_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         wrd.DistanceSolver(wrd.Mesh(_V, _F), alpha_hat=0.05, device="cpu", **kwargs)
+
+
+def test_hessian_with_an_unreferenced_vertex(device):
+    # libigl sizes W_H by the largest referenced vertex; the extra vertex gets +inf
+    V = np.vstack([_V, [[9.0, 9.0, 9.0]]])
+    res = wrd.DistanceSolver(wrd.Mesh(V, _F), alpha_hat=0.05, regularizer="hessian", device=device).solve([0])
+    assert np.isinf(res.distance[-1]) and np.all(np.isfinite(res.distance[:-1])) and res.converged
+
+
+@pytest.mark.parametrize("fade", [True, 0.0, float("nan"), "1"])
+def test_line_field_bad_fade(fade):
+    with pytest.raises(ValueError, match="expected fade as a finite number > 0 or None"):
+        wrd.line_field(wrd.Mesh(_V, _F), [0], [[1.0, 0.0, 0.0]], fade=fade)
+
+
+def test_line_field_numpy_fade():
+    mesh = wrd.Mesh(_V, _F)
+    assert np.allclose(wrd.line_field(mesh, [0], [[1.0, 0.0, 0.0]], fade=np.float32(0.5)),
+                       wrd.line_field(mesh, [0], [[1.0, 0.0, 0.0]], fade=0.5), rtol=1e-6)
 
 
 def test_hessian_on_tetrahedra_is_refused():

@@ -111,6 +111,16 @@ def test_render_rejects_bad_input(sphere, tmp_path):
         render_distance(sphere, values, tmp_path / "a.png", sources=[len(values)])
     with pytest.raises(ValueError, match="expected view"):
         render_distance(sphere, values, tmp_path / "a.png", view=(1.0, 2.0, 3.0))
+    with pytest.raises(ValueError, match="expected isolines as a count >= 0"):
+        render_distance(sphere, values, tmp_path / "a.png", isolines=-1)
+
+
+def test_render_distance_refuses_tetrahedra(tmp_path):
+    import warp_regdist as wrd
+
+    tet = wrd.Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]), np.array([[0, 1, 2, 3]]))
+    with pytest.raises(ValueError, match="expected a triangle mesh, got 1 tetrahedra"):
+        render_distance(tet, np.zeros(4), tmp_path / "a.png")
 
 
 def test_isolines_close_up_on_a_closed_surface(sphere):

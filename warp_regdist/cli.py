@@ -288,17 +288,28 @@ def _regularization(args: argparse.Namespace, mesh) -> dict:
         raise ValueError(f"expected --directions only with --regularizer vector_field, "
                          f"got --regularizer {args.regularizer}")
     ext = os.path.splitext(args.directions)[1].lower()
+    if ext in (".npy", ".csv") and not os.path.isfile(args.directions):
+        raise ValueError(f"expected --directions as an existing file, got {args.directions!r} (no such file)")
     if ext == ".npy":
-        field = np.load(args.directions, allow_pickle=False)
+        try:
+            field = np.load(args.directions, allow_pickle=False)
+        except ValueError:
+            raise ValueError(f"expected --directions as a numeric .npy array of shape (elements, 3), got "
+                             f"an unreadable file {args.directions!r}") from None
     elif ext == ".csv":
         try:
-            rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
+                rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
         except ValueError:
             raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in "
                              f"{args.directions!r}") from None
-        if rows.shape[1] != 4 or not np.all(rows[:, 0] == np.round(rows[:, 0])):
-            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' (integer face), got {rows.shape[1]} "
+        if rows.size == 0 or rows.shape[1] != 4:
+            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz', got {rows.shape[1] if rows.size else 0} "
                              f"columns in {args.directions!r}")
+        if not np.all(rows[:, 0] == np.round(rows[:, 0])):
+            raise ValueError(f"expected integer face indices in the first column of --directions, got "
+                             f"{rows[rows[:, 0] != np.round(rows[:, 0]), 0][0]:g} in {args.directions!r}")
         field = line_field(mesh, rows[:, 0].astype(np.int64), rows[:, 1:])
     else:
         raise ValueError(f"expected --directions ending in .npy or .csv, got {args.directions!r}")

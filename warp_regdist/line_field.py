@@ -114,8 +114,10 @@ def line_field(mesh, faces, directions, fade=None):
     if mesh.elements.shape[1] != 3:
         raise ValueError(f"expected a triangle mesh for a line field, got a tetrahedral mesh "
                          f"({mesh.n_elements} tetrahedra)")
-    if fade is not None and not (isinstance(fade, (int, float)) and math.isfinite(fade) and fade > 0):
+    if fade is not None and (isinstance(fade, (bool, np.bool_)) or not isinstance(fade, (int, float, np.integer, np.floating))
+                             or not math.isfinite(fade) or fade <= 0):
         raise ValueError(f"expected fade as a finite number > 0 or None, got {fade!r}")
+    fade = None if fade is None else float(fade)
     V, F = mesh.vertices, mesh.elements
     m = len(F)
     e1, e2, normals = _frames(V, F)

@@ -111,6 +111,8 @@ def _vector_field_matrix(operators, field, beta):
 
 
 def _check_field(field, m):
+    if np.iscomplexobj(field):
+        raise ValueError(f"expected vector_field as a real ({m}, 3) array, got complex values")
     try:
         field = np.asarray(field, dtype=np.float64)
     except (TypeError, ValueError):
@@ -120,6 +122,9 @@ def _check_field(field, m):
     if not np.all(np.isfinite(field)):
         bad = np.flatnonzero(~np.all(np.isfinite(field), axis=1))[0]
         raise ValueError(f"expected a finite vector_field, got {field[bad].tolist()} on element {bad}")
+    longest = float(np.abs(field).max(initial=0.0))
+    if longest > 1e6:  # beta |V|^2 weighs the alignment: beyond this it swamps the Dirichlet term
+        raise ValueError(f"expected vector_field components <= 1e6 (lengths scale beta_hat), got {longest:.3g}")
     return field
 
 
@@ -168,6 +173,9 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
 
         W = igl.curved_hessian_energy(np.ascontiguousarray(mesh.vertices, dtype=np.float64),
                                       np.ascontiguousarray(mesh.elements, dtype=np.int64))
+        W = sp.csr_matrix(W)
+        if W.shape[0] < mesh.n_vertices:  # libigl sizes it by the largest referenced vertex
+            W = sp.block_diag([W, sp.csr_matrix((mesh.n_vertices - W.shape[0],) * 2)], format="csr")
         W = (W + W.T) * 0.5
         alpha, factor = alpha_hat * operators.total_volume ** 1.5, HESSIAN_TOLERANCE_FACTOR
     WD = operators.stiffness

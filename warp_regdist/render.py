@@ -37,6 +37,8 @@ _DEPTH_LEVELS = 2**24 - 2  # depth codes 1 .. 2^24 - 1 (0 is the empty backgroun
 
 
 def _vertices_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
+    if getattr(mesh, "element_dim", 2) == 3:
+        raise ValueError(f"expected a triangle mesh, got {mesh.n_elements} tetrahedra (use render_cut)")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
@@ -299,6 +301,8 @@ def render_distance(
     views = _views(view, outward != 0)
     colormap = colormaps[cmap]
     if np.ndim(isolines) == 0:
+        if isinstance(isolines, (bool, np.bool_)) or int(isolines) != isolines or isolines < 0:
+            raise ValueError(f"expected isolines as a count >= 0 or a list of levels, got {isolines!r}")
         levels = _default_levels(values, int(isolines))
     else:
         levels = np.asarray(isolines, dtype=np.float64).ravel()
