@@ -56,7 +56,7 @@ from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
 from .regularizers import check_weight
-from .solver import ConvergenceWarning, parse_device
+from .solver import ConvergenceWarning, parse_device, parse_workers
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -323,10 +323,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     for name, value in (("eps_rel", eps_rel), ("eps_rel_consensus", eps_rel_consensus),
                         ("eps_rel_dual", eps_rel_dual), ("rho2_factor", rho2_factor), ("cg_fraction", cg_fraction)):
         check_weight(value, name, positive=True)
-    if workers is None:
-        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
+    workers = parse_workers(workers)
     if progress is not None and not callable(progress):
         raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     if dtype not in SCALARS:
@@ -358,7 +355,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                              + (" (float32 halves it)" if dtype == "float64" else ""))
     memory = device_bytes + host_bytes
 
-    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, int(workers))
+    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers)
     try:
         return _run(state, t0, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
                     cg_fraction, progress)

@@ -76,6 +76,15 @@ def parse_device(device):
         raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
 
 
+def parse_workers(workers):
+    """Number of CPU threads: ``workers`` (an integer >= 1) or, for None, the cores available."""
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
+    return int(workers)
+
+
 class DistanceSolver:
     """Precompute once, solve for many source sets (cf. potpourri3d's solver objects).
 
@@ -117,13 +126,10 @@ class DistanceSolver:
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
-        if workers is None:
-            workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
+        workers = parse_workers(workers)
         wp.init()
         self.device = parse_device(device)
-        self.workers = 1 if self.device.is_cuda else int(workers)
+        self.workers = 1 if self.device.is_cuda else workers
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
