@@ -353,8 +353,10 @@ class DistanceSolver:
             ws["acc"].zero_()
             batch.u_rhs.launch()
             cg_atol = np.minimum(factor * tol.cg_fraction * dual_scale, 0.1 * eps_dual) / (shift + scale * rho)
-            if it > 0:  # below a fraction of r too, in the units of the u-step's (alpha + rho) W_D
-                cg_atol = np.minimum(cg_atol, tol.cg_primal_fraction * r * (self.alpha + rho) / (shift + scale * rho))
+            if it > 0:  # below a fraction of r too, in the units of the u-step's (alpha + rho) W_D u:
+                # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
+                cg_atol = np.minimum(cg_atol, tol.cg_primal_fraction * r * L ** (0.5 * self.mesh.element_dim - 1.0)
+                                     * (self.alpha + rho) / (shift + scale * rho))
             cg_it, _ = ws["pcg"].solve(ws["rhs"], ws["u"], ws["mask"], tol.cg_rtol, tol.cg_max_iterations, cg_atol)
             cg_total += cg_it
             batch.element_step.launch()

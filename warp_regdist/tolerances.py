@@ -42,7 +42,8 @@ class Tolerances:
         (1e-1) saves 40% of the CG work but stalls on small meshes at tight primal tolerances.
     cg_primal_fraction : float
         The u-step's residual is also kept below cg_primal_fraction times the last primal
-        residual r (measured in the units of (alpha + rho) W_D u). Without it, a warm start
+        residual r (times L^(d/2 - 1), in the units of (alpha + rho) W_D u, so that the rule
+        is scale-invariant on tetrahedra too). Without it, a warm start
         that already meets the fixed tolerance leaves u unchanged and r can stall above
         its tolerance: 3 of 8 sources on a 42-vertex sphere with tolerances 10x tighter
         than the defaults, a 12 x 12 grid at alpha_hat 1 (10,000 iterations; 64 with it).
