@@ -289,7 +289,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         (r2, s2, rx2 equal r1, s1, rx1 by symmetry; the floors are the scale of the X-step's
         load), plus the absolute terms of SPEC section 5 with ``tolerances.eps_abs`` (0 by
         default). All must be finite and > 0.
-        The defaults stopped 0.2-0.6% of the maximal distance away from the exact minimizer
+        The defaults stopped 0.2-0.8% of the maximal distance away from the exact minimizer
         on the meshes we measured (README).
     rho2_factor : float
         rho2 = rho2_factor rho^2 / (sqrt(A) A): the consensus penalty grows like the square
