@@ -10,7 +10,7 @@ import types
 
 import warp as wp
 
-from .lanes import lane_type
+from .lanes import lane_funcs, lane_type
 
 # Rows of the ADMM accumulator array acc (5, nb).
 R2, GU2, Z2, S2, DY2 = 0, 1, 2, 3, 4
@@ -23,6 +23,8 @@ def admm_kernels(scalar, W, k):
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_admm_{scalar.__name__}_{W}_{k}")
     one = scalar(1.0)
+    f = lane_funcs(scalar, W)
+    element_gradient, ball_scale, norm2 = f.element_gradient, f.ball_scale, f.norm2
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -41,15 +43,7 @@ def admm_kernels(scalar, W, k):
         g2 = V()
         z2 = V()
         for e in range(c * chunk, wp.min(c * chunk + chunk, m)):
-            gx = V()
-            gy = V()
-            gz = V()
-            for l in range(k):
-                ul = u[elements[e, l], b]
-                gl = basis[e, l]
-                gx += gl[0] * ul
-                gy += gl[1] * ul
-                gz += gl[2] * ul
+            gx, gy, gz = element_gradient(elements, basis, u, e, b, k)
             ox = z[e, 0, b]
             oy = z[e, 1, b]
             oz = z[e, 2, b]
@@ -59,9 +53,7 @@ def admm_kernels(scalar, W, k):
             vx = wp.cw_div(y[e, 0, b], rb) + hx
             vy = wp.cw_div(y[e, 1, b], rb) + hy
             vz = wp.cw_div(y[e, 2, b], rb) + hz
-            s = V()
-            for l in range(W):
-                s[l] = one / wp.max(one, wp.sqrt(vx[l] * vx[l] + vy[l] * vy[l] + vz[l] * vz[l]))
+            s = ball_scale(vx, vy, vz)
             zx = wp.cw_mul(s, vx)
             zy = wp.cw_mul(s, vy)
             zz = wp.cw_mul(s, vz)
@@ -72,12 +64,9 @@ def admm_kernels(scalar, W, k):
             z[e, 1, b] = zy
             z[e, 2, b] = zz
             a = vol[e]
-            rx = gx - zx
-            ry = gy - zy
-            rz = gz - zz
-            r2 += a * (wp.cw_mul(rx, rx) + wp.cw_mul(ry, ry) + wp.cw_mul(rz, rz))
-            g2 += a * (wp.cw_mul(gx, gx) + wp.cw_mul(gy, gy) + wp.cw_mul(gz, gz))
-            z2 += a * (wp.cw_mul(zx, zx) + wp.cw_mul(zy, zy) + wp.cw_mul(zz, zz))
+            r2 += a * norm2(gx - zx, gy - zy, gz - zz)
+            g2 += a * norm2(gx, gy, gz)
+            z2 += a * norm2(zx, zy, zz)
         wp.atomic_add(acc, R2, b, r2)
         wp.atomic_add(acc, GU2, b, g2)
         wp.atomic_add(acc, Z2, b, z2)

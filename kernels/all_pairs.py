@@ -15,7 +15,7 @@ import types
 
 import warp as wp
 
-from .lanes import lane_type
+from .lanes import lane_funcs, lane_type
 
 # Rows of the per-lane accumulator (5, nb): element step (R2, GX2, Z2), vertex step (S2, DY2).
 R2, GX2, Z2, S2, DY2 = 0, 1, 2, 3, 4
@@ -33,14 +33,8 @@ def all_pairs_kernels(scalar, W):
     one = scalar(1.0)
     zero = scalar(0.0)
     half = scalar(0.5)
-
-    @wp.func(module=module)
-    def ball_scale(vx: V, vy: V, vz: V):
-        """Per lane 1 / max(1, |v|): Proj(v) = scale * v."""
-        s = V()
-        for l in range(W):
-            s[l] = one / wp.max(one, wp.sqrt(vx[l] * vx[l] + vy[l] * vy[l] + vz[l] * vz[l]))
-        return s
+    f = lane_funcs(scalar, W)
+    element_gradient, ball_scale, norm2 = f.element_gradient, f.ball_scale, f.norm2
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -60,15 +54,7 @@ def all_pairs_kernels(scalar, W):
         g2 = V()
         z2 = V()
         for e in range(c * chunk, wp.min(c * chunk + chunk, m)):
-            gx = V()
-            gy = V()
-            gz = V()
-            for l in range(3):
-                xl = X[elements[e, l], b]
-                gl = basis[e, l]
-                gx += gl[0] * xl
-                gy += gl[1] * xl
-                gz += gl[2] * xl
+            gx, gy, gz = element_gradient(elements, basis, X, e, b, 3)
             ox = v[e, 0, b]
             oy = v[e, 1, b]
             oz = v[e, 2, b]
@@ -93,12 +79,9 @@ def all_pairs_kernels(scalar, W):
                 dz = w[0] * zx + w[1] * zy + w[2] * zz
                 wp.atomic_add(DZ_acc, elements[e, l], b, dz)
                 wp.atomic_add(DY_acc, elements[e, l], b, rho * (w[0] * vx + w[1] * vy + w[2] * vz - dz))
-            rx = gx - zx
-            ry = gy - zy
-            rz = gz - zz
-            r2 += a * (wp.cw_mul(rx, rx) + wp.cw_mul(ry, ry) + wp.cw_mul(rz, rz))
-            g2 += a * (wp.cw_mul(gx, gx) + wp.cw_mul(gy, gy) + wp.cw_mul(gz, gz))
-            z2 += a * (wp.cw_mul(zx, zx) + wp.cw_mul(zy, zy) + wp.cw_mul(zz, zz))
+            r2 += a * norm2(gx - zx, gy - zy, gz - zz)
+            g2 += a * norm2(gx, gy, gz)
+            z2 += a * norm2(zx, zy, zz)
         wp.atomic_add(acc, R2, b, r2)
         wp.atomic_add(acc, GX2, b, g2)
         wp.atomic_add(acc, Z2, b, z2)

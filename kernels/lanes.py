@@ -5,7 +5,7 @@ import types
 
 import warp as wp
 
-__all__ = ["lane_type", "lane_width", "chunk_size", "lane_kernels", "SCALARS"]
+__all__ = ["lane_type", "lane_width", "chunk_size", "lane_kernels", "lane_funcs", "SCALARS"]
 
 SCALARS = {"float32": wp.float32, "float64": wp.float64}
 
@@ -53,3 +53,42 @@ def lane_kernels(scalar, W):
                 a[i, d // W] = v
 
     return types.SimpleNamespace(move_columns=move_columns)
+
+
+@functools.cache
+def lane_funcs(scalar, W):
+    """Per-element functions on lane vectors shared by the ADMM kernel families."""
+    V = lane_type(scalar, W)
+    V3 = wp.types.vector(3, scalar)
+    module = wp.get_module(f"warp_regdist_lanes_{scalar.__name__}_{W}")
+    one = scalar(1.0)
+
+    @wp.func(module=module)
+    def element_gradient(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), u: wp.array2d(dtype=V),
+                         e: int, b: int, k: int):
+        """(G u)_e per lane as its x, y, z components: sum over the k corners l of basis[e, l] u_l."""
+        gx = V()
+        gy = V()
+        gz = V()
+        for l in range(k):
+            ul = u[elements[e, l], b]
+            gl = basis[e, l]
+            gx += gl[0] * ul
+            gy += gl[1] * ul
+            gz += gl[2] * ul
+        return gx, gy, gz
+
+    @wp.func(module=module)
+    def ball_scale(vx: V, vy: V, vz: V):
+        """Per lane 1 / max(1, |v|): the projection onto the unit ball is scale * v."""
+        s = V()
+        for l in range(W):
+            s[l] = one / wp.max(one, wp.sqrt(vx[l] * vx[l] + vy[l] * vy[l] + vz[l] * vz[l]))
+        return s
+
+    @wp.func(module=module)
+    def norm2(x: V, y: V, z: V):
+        """Per lane |(x, y, z)|^2."""
+        return wp.cw_mul(x, x) + wp.cw_mul(y, y) + wp.cw_mul(z, z)
+
+    return types.SimpleNamespace(element_gradient=element_gradient, ball_scale=ball_scale, norm2=norm2)
