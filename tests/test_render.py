@@ -5,7 +5,8 @@ import pytest
 import trimesh
 
 import warp_regdist as wrd
-from warp_regdist.render import isolines, render_distance, view_rotation
+from warp_regdist.contours import isolines
+from warp_regdist.render import render_distance, view_rotation
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
