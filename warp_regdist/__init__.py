@@ -8,7 +8,8 @@ from . import metrics
 from .all_pairs_admm import AllPairsResult, all_pairs
 from .export import save_vtu
 from .line_field import line_field
-from .mesh import Mesh, MeshError, boundary_vertices, load_mesh
+from .mesh import Mesh, MeshError, boundary_vertices
+from .mesh_io import load_mesh
 from .operators import Operators, build_operators
 from .regularizers import REGULARIZERS
 from .solver import ConvergenceWarning, DistanceResult, DistanceSolver

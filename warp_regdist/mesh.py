@@ -1,13 +1,11 @@
 """Simplicial meshes: triangle surfaces (element_dim 2) and tetrahedral volumes (element_dim 3).
 
 A :class:`Mesh` is validated once on construction, so that no solver kernel ever sees
-an index out of range, a NaN coordinate or a zero-volume element.
+an index out of range, a NaN coordinate or a zero-volume element. Files are read by
+:func:`warp_regdist.mesh_io.load_mesh`.
 """
 
 from __future__ import annotations
-
-import os
-import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,7 +13,7 @@ import scipy.sparse.csgraph as csgraph
 
 from .tolerances import tolerances
 
-__all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices"]
+__all__ = ["Mesh", "MeshError", "boundary_vertices"]
 
 
 class MeshError(ValueError):
@@ -155,180 +153,3 @@ def boundary_vertices(mesh):
     key = np.sort(facets, axis=1)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     return np.unique(key[counts[inv.ravel()] == 1]).astype(np.int64)
-
-
-_VOLUME_FORMATS = {".msh": ("gmsh", "ansys"), ".vtk": ("vtk",), ".vtu": ("vtu",), ".mesh": ("medit",)}  # meshio
-_SURFACE_FORMATS = (".off", ".ply", ".stl")  # read by trimesh (OBJ by _read_obj)
-
-
-def load_mesh(path):
-    """Read a triangle or tetrahedral mesh file, keeping the file's vertex order.
-
-    Triangle surfaces: OBJ (:func:`_read_obj`), OFF, PLY, STL (trimesh); polygons with more
-    than three corners are fan-triangulated, with a warning that says how many. STL stores
-    every triangle's corners separately: corners with identical coordinates are merged into
-    one vertex, numbered in order of first appearance. Tetrahedral (or
-    triangle) meshes: gmsh ``.msh`` (ASCII or binary, versions 2.2 and 4.1; also ANSYS
-    Fluent ``.msh``), VTK ``.vtk`` / ``.vtu``, Medit ``.mesh`` (meshio),
-    see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
-    for a missing or unreadable file and for every defect :class:`Mesh` checks.
-    """
-    path = os.fsdecode(os.fspath(path))
-    if not os.path.isfile(path):
-        raise MeshError(f"expected an existing mesh file, got {path!r} (no such file)")
-    ext = os.path.splitext(path)[1].lower()
-    if ext in _VOLUME_FORMATS:
-        V, T = _read_volume_file(path, ext)
-        return Mesh(V, T)
-    if ext == ".obj":
-        V, F, n_poly = _read_obj(path)
-        _warn_polygons(path, n_poly)
-        return Mesh(V, F)
-    if ext not in _SURFACE_FORMATS:
-        raise MeshError(f"expected a mesh file ending in .obj, .off, .ply, .stl, .msh, .vtk, .vtu or .mesh, "
-                        f"got {path!r}")
-    import trimesh
-
-    try:
-        loaded = trimesh.load(path, process=False, force="mesh")
-    except ImportError:  # trimesh tries optional text decoders on binary garbage
-        raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file") from None
-    except Exception as exc:  # trimesh raises many types for malformed files
-        raise MeshError(f"could not read mesh file {path!r}: {exc}") from None
-    V = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
-    F = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))))
-    if F.size == 0:
-        raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
-    if V.shape[0] == 0:
-        raise MeshError(f"expected vertices in {path!r}, got none")
-    if ext == ".stl":
-        V, F = _merge_equal_vertices(V, F)
-    _warn_polygons(path, _count_off_polygons(path) if ext == ".off" else 0)
-    return Mesh(V, F)
-
-
-def _warn_polygons(path, count):
-    if count:
-        warnings.warn(f"{path}: {count} polygon faces with more than 3 corners were triangulated", stacklevel=3)
-
-
-def _merge_equal_vertices(V, F):
-    """One vertex per distinct position, numbered by first appearance in V (for STL)."""
-    V = np.asarray(V, dtype=np.float64) + 0.0  # -0.0 -> 0.0
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    return V[first[order]], rank[inverse.ravel()][np.asarray(F)]
-
-
-def _read_obj(path):
-    """Vertices and triangles of a Wavefront OBJ file, in the file's order.
-
-    Reads ``v x y z`` and ``f i j k ...`` lines (corners ``i``, ``i/t``, ``i//n`` or
-    ``i/t/n``; 1-based, negative = relative to the vertices read so far) and ignores
-    everything else (texture coordinates, normals, groups, materials, lines). Polygons
-    are fan-triangulated. Unlike trimesh, materials and groups neither split nor
-    renumber the vertices.
-
-    Returns
-    -------
-    V : (n, 3) ndarray of float64
-    F : (m, 3) ndarray of int64 (indices may be out of range: :class:`Mesh` checks them)
-    polygons : int, number of faces with more than three corners
-    """
-    with open(path, "rb") as f:
-        lines = f.read().splitlines()
-    coords, faces, polygons = [], [], 0
-    try:
-        for number, line in enumerate(lines, 1):
-            tokens = line.split()
-            if not tokens or tokens[0] not in (b"v", b"f"):
-                continue
-            if len(tokens) < 4:
-                raise ValueError(f"line {number}: expected 3 or more values, got {line[:60]!r}")
-            if tokens[0] == b"v":
-                coords.append(b" ".join(tokens[1:4]))
-                continue
-            corners = [int(t.split(b"/", 1)[0]) for t in tokens[1:]]
-            if min(corners) < 0 or 0 in corners:
-                if 0 in corners:
-                    raise ValueError(f"line {number}: expected 1-based or negative vertex indices, got 0")
-                corners = [c if c > 0 else len(coords) + c + 1 for c in corners]
-            polygons += len(corners) > 3
-            faces.extend((corners[0], corners[k], corners[k + 1]) for k in range(1, len(corners) - 1))
-        V = np.array(b" ".join(coords).split(), dtype=np.float64).reshape(-1, 3)
-    except ValueError as exc:
-        raise MeshError(f"could not read mesh file {path!r}: {exc}") from None
-    if not faces:
-        raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
-    return V, np.array(faces, dtype=np.int64) - 1, polygons
-
-
-def _read_volume_file(path, ext):
-    """Points and elements of a gmsh / VTK / Medit file, read with meshio.
-
-    The elements are all ``tetra`` cells of the file, in file order, when it has any; the
-    file's lower-dimensional cells (boundary triangles, lines, points, as gmsh writes them)
-    are then ignored. Without tetrahedra, the ``triangle`` cells are used. Any other cell
-    type of the dimension used (hexahedra, wedges, pyramids, quadratic tetrahedra beside
-    or instead of tetrahedra; quads beside or instead of triangles) is refused rather than
-    dropped. meshio returns 0-based point indices in the file's point order for every
-    format (Medit's 1-based indices and gmsh's node tags are converted); 2-D points get
-    z = 0.
-
-    Returns
-    -------
-    V : (n, 3) ndarray of float64
-    T : (m, 4) or (m, 3) ndarray of int64
-    """
-    import meshio
-
-    reasons = []
-    for fmt in _VOLUME_FORMATS[ext]:
-        try:
-            # the format's own reader: meshio.read() calls sys.exit on a file it cannot parse
-            data = getattr(meshio, fmt).read(path)
-            break
-        except Exception as exc:  # meshio raises ReadError, but also ValueError, UnicodeDecodeError, ...
-            reasons.append(str(exc).strip() or f"not a valid {fmt} file")
-    else:
-        raise MeshError(f"could not read mesh file {path!r}: {'; '.join(reasons)}")
-    counts = {}
-    for block in data.cells:
-        counts.setdefault((block.dim, block.type), 0)
-        counts[(block.dim, block.type)] += len(block.data)
-    listing = ", ".join(f"{k} {t}" for (_, t), k in counts.items()) or "no cells"
-    for dim, kind in ((3, "tetra"), (2, "triangle")):
-        others = sorted(t for (d, t) in counts if d == dim and t != kind)
-        if others and (dim, kind) in counts:
-            raise MeshError(f"expected only {kind} cells among the {dim}-D cells of {path!r}, got mixed cells "
-                            f"({listing}); {', '.join(others)} are not supported")
-        if others:
-            raise MeshError(f"expected tetrahedra ('tetra') or triangles in {path!r}, got unsupported "
-                            f"{dim}-D cells ({listing})")
-        if (dim, kind) in counts:
-            T = np.concatenate([b.data for b in data.cells if b.type == kind])
-            break
-    else:
-        raise MeshError(f"expected tetrahedra ('tetra') or triangles in {path!r}, got {listing}")
-    V = np.asarray(data.points)
-    if V.ndim == 2 and V.shape[1] == 2:
-        V = np.concatenate([V, np.zeros((len(V), 1))], axis=1)
-    return V, T
-
-
-def _count_off_polygons(path):
-    """Number of faces with more than three corners in an OFF file."""
-    with open(path, "rb") as f:
-        tokens = [ln.split(b"#")[0].split() for ln in f.read().splitlines()]
-    tokens = [t for t in tokens if t]
-    if not tokens or not tokens[0][0].upper().endswith(b"OFF"):
-        return 0
-    head = tokens[0][1:] or tokens[1]
-    start = 1 if tokens[0][1:] else 2
-    try:
-        nv, nf = int(head[0]), int(head[1])
-        return sum(1 for t in tokens[start + nv:start + nv + nf] if int(t[0]) > 3)
-    except (ValueError, IndexError):
-        return 0
