@@ -14,8 +14,9 @@ frames, a line is carried from f to g by the rotation r_fg = exp(2 i (theta_g - 
 with c fixed on the constrained faces (a sparse Hermitian solve), then normalized:
 V_f = cos(phi_f) e1_f + sin(phi_f) e2_f with phi_f = arg(c_f) / 2. With ``fade`` the unit
 field is multiplied by exp(-d_f^2 / (2 sigma^2)), sigma = fade sqrt(A), where d_f is the
-mean over the face's corners of the discrete geodesic distance (DistanceSolver with
-alpha_hat = 0) to the vertices of the constrained faces (d_f = 0 on them).
+mean over the face's corners of the exact polyhedral geodesic distance (libigl's
+``exact_geodesic``, the MMP algorithm) to the vertices of the constrained faces. The
+field does not depend on the distance solver that consumes it.
 """
 
 from __future__ import annotations
@@ -100,8 +101,8 @@ def line_field(mesh, faces, directions, fade=None):
         projected to the face's plane (a direction normal to its face is refused).
     fade : float or None
         Scale-invariant width: multiply the field by exp(-d^2 / (2 sigma^2)) with
-        sigma = fade * sqrt(total area) and d the geodesic distance to the constrained
-        faces; None: no fading (unit length everywhere).
+        sigma = fade * sqrt(total area) and d the exact geodesic distance to the vertices
+        of the constrained faces; None: no fading (unit length everywhere).
 
     Returns
     -------
@@ -149,9 +150,11 @@ def line_field(mesh, faces, directions, fade=None):
     phi = 0.5 * np.angle(c)
     field = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
     if fade is not None:
-        from .solver import DistanceSolver
+        import igl
 
-        d = DistanceSolver(mesh, alpha_hat=0.0).solve(np.unique(F[faces])).distance
+        d = igl.exact_geodesic(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                               np.unique(F[faces]).astype(np.int64), np.empty(0, dtype=np.int64),
+                               np.arange(len(V), dtype=np.int64), np.empty(0, dtype=np.int64))
         P = V[F]
         sigma = fade * math.sqrt(0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
         field *= np.exp(-np.square(d[F].mean(axis=1)) / (2.0 * sigma * sigma))[:, None]
