@@ -1,4 +1,4 @@
-"""The quadratic regularizers W of the distance problem and their scale-invariant weights (SPEC section 3).
+"""The quadratic regularizers W of the distance problem and their scale-invariant weights (docs/method.md section 3).
 
     minimize_u  -A_V^T u + (alpha / 2) u^T W u   subject to |(G u)_e| <= 1, u_E = 0
 
@@ -19,17 +19,18 @@ operation on the values and keeps one pattern (``BatchedPCG.set_matrix``).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["REGULARIZERS", "Regularizer", "build_regularizer", "check_weight"]
+from .arguments import check_weight
+
+__all__ = ["REGULARIZERS", "Regularizer", "build_regularizer"]
 
 REGULARIZERS = ("dirichlet", "vector_field", "hessian")
 
 HESSIAN_TOLERANCE_FACTOR = 1.0 / 20.0
-"""The Hessian's stopping tolerances are the defaults times this (SPEC section 4)."""
+"""The Hessian's stopping tolerances are the defaults times this (docs/method.md section 8)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,24 +79,6 @@ def _on_pattern(matrix, pattern):
     rows = np.repeat(np.arange(pattern.shape[0]), np.diff(pattern.indptr))
     values = np.asarray(matrix.tocsr()[rows, pattern.indices]).ravel()
     return sp.csr_matrix((values, pattern.indices, pattern.indptr), shape=pattern.shape)
-
-
-def check_weight(value, name, positive=False):
-    """``value`` as a float; ValueError unless it is a finite real >= 0 (> 0 if ``positive``).
-
-    Used for alpha_hat, beta_hat and the all-pairs tolerances; booleans and strings are refused
-    (True would silently mean 1).
-    """
-    bound = "> 0" if positive else ">= 0"
-    if isinstance(value, (bool, np.bool_, str, bytes)):
-        raise ValueError(f"expected a real {name} {bound}, got {value!r}")
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"expected a real {name} {bound}, got {value!r}") from None
-    if not math.isfinite(value) or value < 0 or (positive and value == 0):
-        raise ValueError(f"expected a finite {name} {bound}, got {value!r}")
-    return value
 
 
 def _vector_field_matrix(operators, field, beta):

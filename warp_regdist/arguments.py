@@ -1,0 +1,89 @@
+"""Checks of the generic arguments shared by the solvers: weights, worker counts, Warp devices.
+
+Each returns the value in canonical form or raises ValueError("expected ..., got ...").
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+
+import numpy as np
+import warp as wp
+
+__all__ = ["check_weight", "parse_device", "parse_workers"]
+
+_CUDA_DRIVER_WARNING = b"Could not find or load the NVIDIA CUDA driver"
+"""Printed by Warp's native start-up on every machine without an NVIDIA driver."""
+
+
+def check_weight(value, name, positive=False):
+    """``value`` as a float; ValueError unless it is a finite real >= 0 (> 0 if ``positive``).
+
+    Used for alpha_hat, beta_hat and the all-pairs tolerances; booleans and strings are refused
+    (True would silently mean 1).
+    """
+    bound = "> 0" if positive else ">= 0"
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise ValueError(f"expected a real {name} {bound}, got {value!r}")
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected a real {name} {bound}, got {value!r}") from None
+    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ValueError(f"expected a finite {name} {bound}, got {value!r}")
+    return value
+
+
+def parse_workers(workers):
+    """Number of CPU threads: ``workers`` (an integer >= 1) or, for None, the cores available."""
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
+    return int(workers)
+
+
+def parse_device(device):
+    """The Warp device named ``device`` (None: Warp's default), initializing Warp first.
+
+    ValueError naming the available devices for an unknown name. Warp's native start-up
+    writes "Could not find or load the NVIDIA CUDA driver" to stderr on every machine
+    without one; that line is dropped unless ``device`` names a CUDA device, where it
+    explains why the device is missing.
+    """
+    _init_warp(keep_cuda_warning=str(device).startswith("cuda"))
+    try:
+        return wp.get_device(device)
+    except Exception:
+        names = [str(d) for d in wp.get_devices()]
+        raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
+
+
+def _init_warp(keep_cuda_warning):
+    """``wp.init()``; unless ``keep_cuda_warning``, its native stderr output (file descriptor 2)
+    is captured and written back without the CUDA-driver line. No-op once Warp is initialized."""
+    if keep_cuda_warning:
+        wp.init()
+        return
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no file descriptor 2 to redirect
+        wp.init()
+        return
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        kept = b"".join(line for line in captured.read().splitlines(keepends=True)
+                        if _CUDA_DRIVER_WARNING not in line)
+    if kept:
+        os.write(2, kept)
