@@ -29,7 +29,7 @@ def _rel(a, b):
 
 def test_scaling_the_mesh_scales_the_distance(device):
     V, F = _bumpy_sphere()
-    # default tolerances: with scale-invariant settings (SPEC section 4) the ADMM runs
+    # default tolerances: with scale-invariant settings (docs/method.md sections 4 and 8) the ADMM runs
     # the same iterations on both meshes, so they agree far below the solver tolerance
     d1 = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device).solve([3])
     d10 = wrd.DistanceSolver(wrd.Mesh(10.0 * V, F), alpha_hat=0.05, device=device).solve([3])

@@ -1,4 +1,4 @@
-"""Quality measures of distance fields and distance matrices (SPEC section 7).
+"""Quality measures of distance fields and distance matrices (docs/method.md section 7).
 
 Usable on the output of any method (this package, the heat method, exact geodesics):
 

@@ -1,4 +1,4 @@
-"""Piecewise-linear finite-element operators on a simplicial mesh (SPEC section 2).
+"""Piecewise-linear finite-element operators on a simplicial mesh (docs/method.md section 2).
 
 For element e with vertices v_0..v_d (d = 2 triangles, d = 3 tetrahedra) the hat
 function of v_l has the constant gradient ``basis[e, l]`` (a 3-vector tangent to the
