@@ -12,6 +12,7 @@ import pytest
 
 import meshes
 import warp_regdist as wrd
+from warp_regdist.line_field import read_directions
 
 
 def _normals(V, F):
@@ -83,3 +84,31 @@ def test_a_component_without_constraints_is_refused():
     F2 = np.concatenate([F, F + len(V)])
     with pytest.raises(ValueError, match="expected a constrained face in every connected component"):
         wrd.line_field(wrd.Mesh(V2, F2), [0], [[1.0, 0.0, 0.0]])
+
+
+def test_read_directions_from_npy_and_csv(tmp_path):
+    V, F = meshes.square_grid(6, 1.0)
+    mesh = wrd.Mesh(V, F)
+    field = np.random.default_rng(1).normal(size=(len(F), 3))
+    np.save(tmp_path / "field.npy", field)
+    np.testing.assert_array_equal(read_directions(tmp_path / "field.npy", mesh), field)
+    (tmp_path / "dirs.csv").write_text("# face,dx,dy,dz\n3,1,1,0\n40,0,1,0\n")
+    np.testing.assert_array_equal(read_directions(str(tmp_path / "dirs.csv"), mesh),
+                                  wrd.line_field(mesh, [3, 40], [[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]))
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("dirs.txt", "3,1,0,0\n", r"^expected a directions file ending in \.npy or \.csv, got '.*dirs\.txt'$"),
+    ("none.csv", None, r"^expected an existing directions file, got '.*none\.csv' \(no such file\)$"),
+    ("dirs.csv", "3,1,0\n", r"^expected CSV rows 'face,dx,dy,dz', got 3 columns in '.*dirs\.csv'$"),
+    ("dirs.csv", "", r"^expected CSV rows 'face,dx,dy,dz', got 0 columns in '.*dirs\.csv'$"),
+    ("dirs.csv", "3,a,0,0\n", r"^expected CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in '.*dirs\.csv'$"),
+    ("dirs.csv", "3.5,1,0,0\n", r"^expected integer face indices in the first column, got 3\.5 in '.*dirs\.csv'$"),
+    ("dirs.npy", b"not an array", r"^expected a numeric \.npy array of shape \(elements, 3\), got an unreadable file "),
+])
+def test_read_directions_refuses_bad_files(tmp_path, name, content, message):
+    V, F = meshes.square_grid(6, 1.0)
+    if content is not None:
+        (tmp_path / name).write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(ValueError, match=message):
+        read_directions(tmp_path / name, wrd.Mesh(V, F))

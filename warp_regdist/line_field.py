@@ -16,12 +16,15 @@ V_f = cos(phi_f) e1_f + sin(phi_f) e2_f with phi_f = arg(c_f) / 2. With ``fade``
 field is multiplied by exp(-d_f^2 / (2 sigma^2)), sigma = fade sqrt(A), where d_f is the
 mean over the face's corners of the exact polyhedral geodesic distance (libigl's
 ``exact_geodesic``, the MMP algorithm) to the vertices of the constrained faces. The
-field does not depend on the distance solver that consumes it.
+field does not depend on the distance solver that consumes it. :func:`read_directions`
+reads a field, or the constraints of one, from a file (the command line's ``--directions``).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -30,7 +33,7 @@ import scipy.sparse.linalg as spla
 
 from .mesh import Mesh
 
-__all__ = ["line_field"]
+__all__ = ["line_field", "read_directions"]
 
 
 def _frames(vertices, faces):
@@ -159,3 +162,38 @@ def line_field(mesh, faces, directions, fade=None):
         sigma = fade * math.sqrt(0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
         field *= np.exp(-np.square(d[F].mean(axis=1)) / (2.0 * sigma * sigma))[:, None]
     return field
+
+
+def read_directions(path, mesh):
+    """The vector field of the "vector_field" regularizer from a file, as (m, 3) float64.
+
+    ``.npy``: the field itself, one vector per element (its shape and values are checked by
+    the solver). ``.csv``: rows ``face,dx,dy,dz`` (lines starting with ``#`` are comments),
+    sign-free directions on a few faces, interpolated by :func:`line_field`.
+    """
+    path = os.fsdecode(os.fspath(path))
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".npy", ".csv"):
+        raise ValueError(f"expected a directions file ending in .npy or .csv, got {path!r}")
+    if not os.path.isfile(path):
+        raise ValueError(f"expected an existing directions file, got {path!r} (no such file)")
+    if ext == ".npy":
+        try:
+            return np.load(path, allow_pickle=False)
+        except ValueError:
+            raise ValueError(f"expected a numeric .npy array of shape (elements, 3), got an unreadable file "
+                             f"{path!r}") from None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
+            rows = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except ValueError:
+        raise ValueError(f"expected CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in {path!r}") from None
+    if rows.size == 0 or rows.shape[1] != 4:
+        raise ValueError(f"expected CSV rows 'face,dx,dy,dz', got {rows.shape[1] if rows.size else 0} columns "
+                         f"in {path!r}")
+    fractional = rows[:, 0] != np.round(rows[:, 0])
+    if fractional.any():
+        raise ValueError(f"expected integer face indices in the first column, got {rows[fractional, 0][0]:g} "
+                         f"in {path!r}")
+    return line_field(mesh, rows[:, 0].astype(np.int64), rows[:, 1:])
