@@ -9,6 +9,7 @@ and exit status 2; other exceptions are bugs and propagate with their traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.resources
 import os
 import re
@@ -41,7 +42,7 @@ def _parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(
         prog=PROG,
-        description="Regularized geodesic distances on triangle meshes (Edelstein et al.,\n"
+        description="Regularized geodesic distances on triangle and tetrahedral meshes (Edelstein et al.,\n"
         "SIGGRAPH 2023), solved by ADMM with Warp kernels on the CPU or a CUDA GPU.",
         epilog=_EXIT_STATUS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -220,6 +221,18 @@ def _warn(message: str) -> None:
     print(f"{PROG}: warning: {message}", file=sys.stderr)
 
 
+@contextlib.contextmanager
+def _warnings_to_stderr(reported_by_caller=()):
+    """Record the warnings of the block, then print each as one 'warp-regdist: warning: ...'
+    line, except those of the categories ``reported_by_caller`` (a tuple of classes)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        if not issubclass(w.category, reported_by_caller):
+            _warn(str(w.message))
+
+
 def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
            **regularization):
     """Solve once; returns (solver, result), reporting non-convergence on stderr
@@ -231,12 +244,8 @@ def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verb
 
     wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with _warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose)
-    for w in caught:
-        if not issubclass(w.category, ConvergenceWarning):
-            _warn(str(w.message))
     if not result.converged:
         _warn(
             f"the ADMM did not converge in {result.iterations} iterations (primal residual "
@@ -249,12 +258,8 @@ def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verb
 def _load(path: str):
     from . import load_mesh
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        mesh = load_mesh(path)
-    for w in caught:
-        _warn(str(w.message))
-    return mesh
+    with _warnings_to_stderr():
+        return load_mesh(path)
 
 
 def _summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
@@ -278,7 +283,7 @@ def _finite_max(values: np.ndarray) -> float:
 
 def _regularization(args: argparse.Namespace, mesh) -> dict:
     """DistanceSolver keywords from --regularizer, --beta-hat and --directions."""
-    from . import line_field
+    from .line_field import read_directions
 
     if args.directions is None:
         if args.regularizer == "vector_field":
@@ -287,32 +292,7 @@ def _regularization(args: argparse.Namespace, mesh) -> dict:
     if args.regularizer != "vector_field":
         raise ValueError(f"expected --directions only with --regularizer vector_field, "
                          f"got --regularizer {args.regularizer}")
-    ext = os.path.splitext(args.directions)[1].lower()
-    if ext in (".npy", ".csv") and not os.path.isfile(args.directions):
-        raise ValueError(f"expected --directions as an existing file, got {args.directions!r} (no such file)")
-    if ext == ".npy":
-        try:
-            field = np.load(args.directions, allow_pickle=False)
-        except ValueError:
-            raise ValueError(f"expected --directions as a numeric .npy array of shape (elements, 3), got "
-                             f"an unreadable file {args.directions!r}") from None
-    elif ext == ".csv":
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
-                rows = np.loadtxt(args.directions, delimiter=",", ndmin=2, comments="#")
-        except ValueError:
-            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in "
-                             f"{args.directions!r}") from None
-        if rows.size == 0 or rows.shape[1] != 4:
-            raise ValueError(f"expected --directions CSV rows 'face,dx,dy,dz', got {rows.shape[1] if rows.size else 0} "
-                             f"columns in {args.directions!r}")
-        if not np.all(rows[:, 0] == np.round(rows[:, 0])):
-            raise ValueError(f"expected integer face indices in the first column of --directions, got "
-                             f"{rows[rows[:, 0] != np.round(rows[:, 0]), 0][0]:g} in {args.directions!r}")
-        field = line_field(mesh, rows[:, 0].astype(np.int64), rows[:, 1:])
-    else:
-        raise ValueError(f"expected --directions ending in .npy or .csv, got {args.directions!r}")
+    field = read_directions(args.directions, mesh)
     return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field}
 
 
@@ -371,13 +351,9 @@ def _allpairs(args: argparse.Namespace) -> None:
     _check_output(args.output, (".npy",), "--output")
     mesh = _load(args.mesh)
     wp.config.log_level = wp.LOG_WARNING
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with _warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
                            progress=None if args.quiet else _allpairs_progress())
-    for w in caught:
-        if not issubclass(w.category, ConvergenceWarning):
-            _warn(str(w.message))
     if not result.converged:
         _warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is approximate")
     np.save(args.output, result.distance)
@@ -391,6 +367,8 @@ def _allpairs(args: argparse.Namespace) -> None:
 def _demo(args: argparse.Namespace) -> None:
     from .render import render_distance
 
+    if os.path.exists(args.output) and not os.path.isdir(args.output):
+        raise ValueError(f"expected --output as a directory, got the file {args.output!r}")
     os.makedirs(args.output, exist_ok=True)
     npy = os.path.join(args.output, "distance.npy")
     png = os.path.join(args.output, "distance.png")
