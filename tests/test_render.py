@@ -132,3 +132,52 @@ def test_isolines_close_up_on_a_closed_surface(sphere):
         assert len(segs) > 10
         _, counts = np.unique(segs.reshape(-1, 3), axis=0, return_counts=True)
         assert np.all(counts == 2)
+
+
+def _sheet(nx, ny, width, z):
+    """Flat rectangle [0, width] x [0, 1] at height z, nx x ny cells, two triangles each."""
+    x, y = np.meshgrid(np.linspace(0.0, width, nx + 1), np.linspace(0.0, 1.0, ny + 1), indexing="xy")
+    vertices = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], axis=1)
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
+    a = (j * (nx + 1) + i).ravel()
+    k = nx + 1
+    return vertices, np.concatenate([np.stack([a, a + 1, a + k + 1], 1), np.stack([a, a + k + 1, a + k], 1)])
+
+
+def _dark_columns(rgb):
+    """Number of separate vertical dark lines in an (h, w, 3) image block."""
+    dark = (rgb.max(axis=2) < 0.3).mean(axis=0) > 0.5
+    return int(np.count_nonzero(dark[1:] & ~dark[:-1]) + dark[0])
+
+
+def test_the_depth_test_hides_isolines_behind_a_nearer_surface(tmp_path, monkeypatch):
+    # A far 2 x 1 sheet with u = x and isolines at x = 0.1, 0.2, ..., 1.9, and in front of
+    # its left half a 1 x 1 sheet at the top of the colour map (u = 3), seen head-on. The
+    # near sheet must cover the far one's left half and every isoline behind it.
+    import matplotlib.image
+
+    import warp_regdist.render as render
+
+    far_v, far_f = _sheet(16, 8, 2.0, 0.0)
+    toward_camera = view_rotation(np.concatenate([far_v, [[0.0, 0.0, 0.5]]]), 0.0, 0.0)[2, 2]
+    near_v, near_f = _sheet(8, 8, 1.0, 0.5 * np.sign(toward_camera))
+    mesh = wrd.Mesh(np.concatenate([far_v, near_v]), np.concatenate([far_f, near_f + len(far_v)]))
+    values = np.concatenate([far_v[:, 0], np.full(len(near_v), 3.0)])
+
+    def draw(name):
+        path = tmp_path / name
+        render_distance(mesh, values, path, isolines=np.linspace(0.1, 1.9, 19), view=(0.0, 0.0))
+        return matplotlib.image.imread(path)[..., :3]
+
+    rgb = draw("occluded.png")
+    yellow = (rgb[..., 0] > 0.6) & (rgb[..., 1] > 0.6) & (rgb[..., 2] < 0.35)  # viridis' top: the near sheet
+    rows, cols = np.nonzero(yellow[:, :rgb.shape[1] * 2 // 3])  # the mesh panel, not the colour bar
+    r0, r1, c0, c1 = rows.min() + 3, rows.max() - 3, cols.min() + 3, cols.max() - 3
+    assert c1 - c0 > 200 and r1 - r0 > 200
+    assert yellow[r0:r1, c0:c1].mean() > 0.95  # the near sheet is painted over the far one
+    assert _dark_columns(rgb[r0:r1, c0:c1]) == 0  # no isoline shows through it
+    right = rgb[r0:r1, c1 + 6:c1 + 6 + (c1 - c0)]  # the far sheet's visible half, x in (1, 2)
+    assert 9 <= _dark_columns(right) <= 10  # its isolines at 1.1 ... 1.9 (and 1.0 on the edge)
+    # the same picture without the depth test: the hidden isolines appear over the near sheet
+    monkeypatch.setattr(render, "_visible", lambda ax, buffer, xy, code_min: np.ones(len(xy), dtype=bool))
+    assert _dark_columns(draw("no_depth_test.png")[r0:r1, c0:c1]) >= 9
