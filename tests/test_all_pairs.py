@@ -149,10 +149,10 @@ def test_triangle_inequality_violations_drop_as_alpha_grows(bumpy42):
 def test_distance_matrix_rows_and_symmetrization(bumpy42):
     mesh, _ = bumpy42
     src = np.array([3, 17, 40])
-    rows = wrd.distance_matrix(mesh, 0.03, sources=src, symmetrize=False, batch_size=2)
+    rows = wrd.distance_matrix(mesh, 0.03, sources=src, symmetrize=False, chunk=2)
     single = wrd.DistanceSolver(mesh, 0.03).solve_many([[s] for s in src]).distance.T
     assert np.array_equal(rows, single)
-    sym = wrd.distance_matrix(mesh, 0.03, sources=src, batch_size=2)
+    sym = wrd.distance_matrix(mesh, 0.03, sources=src, chunk=2)
     block = rows[:, src]
     assert np.array_equal(sym[:, src], 0.5 * (block + block.T))
     full = wrd.distance_matrix(mesh, 0.03)

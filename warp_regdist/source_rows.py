@@ -1,67 +1,157 @@
 """Distance matrices from batched single-source solves (the cheaper alternative to all pairs).
 
 Row r of the result is the single-source regularized distance (Algorithm 1) from vertex
-``sources[r]``: solved as batched ADMMs of ``batch_size`` columns each by
-:meth:`DistanceSolver.solve_many`, so the memory is that of one batch whatever the number
-of rows. The rows are not symmetric (d(x, y) != d(y, x) for alpha > 0); ``symmetrize``
-averages the two values of every pair of source vertices, as the paper does for its
-"symmetrized fixed-source" comparison. Unlike :func:`~warp_regdist.all_pairs`, no
-constraint couples the rows, so this is no minimizer of the all-pairs problem.
+``sources[r]``. The rows are solved in blocks of ``chunk`` sources, each block one batched
+ADMM (:meth:`DistanceSolver.solve_many`): here, or as tasks on a Dask cluster
+(:mod:`warp_regdist.distributed`). Blocks go to memory or, with ``out``, to a Zarr array or
+a ``.npy`` memory map, resumably (:mod:`warp_regdist.matrix_store`). The rows are not
+symmetric (d(x, y) != d(y, x) for alpha > 0); ``symmetrize`` averages the two values of
+every pair of source vertices, as the paper does for its "symmetrized fixed-source"
+comparison. Unlike :func:`~warp_regdist.all_pairs`, no constraint couples the rows, so this
+is no minimizer of the all-pairs problem.
 """
 
 from __future__ import annotations
 
+import hashlib
+import time
+import warnings
+
 import numpy as np
 
-from .solver import DistanceSolver
+from .kernels.lanes import SCALARS
+from .matrix_store import open_rows
+from .mesh import Mesh
+from .regularizers import check_weight
+from .solver import ConvergenceWarning, DistanceSolver
 
-__all__ = ["distance_matrix"]
+__all__ = ["distance_matrix", "solve_rows", "mesh_sha256"]
 
 
-def distance_matrix(mesh, alpha_hat=0.03, sources=None, symmetrize=True, device=None, dtype="float64",
-                    batch_size=256, workers=None):
+def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
+                    chunk=64, workers=None, client=None, out=None, progress=None):
     """Single-source distances from many vertices, stacked as rows.
 
     Parameters
     ----------
     mesh : Mesh
     alpha_hat : float
-        Scale-invariant regularization weight >= 0 of each single-source problem. (The
-        all-pairs problem counts the Dirichlet energy of a symmetric U twice, so its rows
-        are closest to single-source rows with 2 alpha_hat.)
+        Scale-invariant regularization weight >= 0 of each single-source problem (default
+        0.05, as :class:`DistanceSolver`). The all-pairs problem counts the Dirichlet energy
+        of a symmetric U twice, so its rows are closest to single-source rows at 2 alpha_hat.
     sources : (k,) array_like of int or None
         Distinct source vertices, one row each; None: all vertices (k = n).
     symmetrize : bool
         Replace D[r, sources[c]] and D[c, sources[r]] by their mean for every pair of rows,
         so the (k, k) block of source columns (all of D when sources is None) is symmetric.
-    device, dtype, workers
-        As for :class:`DistanceSolver` (each batch is split among ``workers`` CPU threads).
-    batch_size : int
-        Sources per batched ADMM (memory grows linearly with it).
+    device, dtype
+        As for :class:`DistanceSolver`; the matrix has the solver's dtype.
+    chunk : int
+        Rows per block: one batched ADMM, one Dask task, one stored block (memory grows
+        linearly with it).
+    workers : int or None
+        CPU threads of the local solver (each block is split among them); with a client each
+        task runs on one thread of its Dask worker.
+    client : dask.distributed.Client or None
+        Solve the blocks as tasks on this cluster (needs ``pip install 'warp-regdist[distributed]'``);
+        the mesh goes once to every worker, which builds its solver once.
+    out : str, path or None
+        Write the matrix to this ``.zarr`` (Zarr array, chunks of (chunk, n), NaN where not yet
+        written; needs zarr) or ``.npy`` (memory map, 0 where not yet written) path, block by block,
+        never holding the whole matrix in memory. Run again with the same arguments, it skips
+        the blocks already written; a path holding another problem is refused.
+    progress : callable or None
+        ``progress(blocks_done, blocks_total, seconds)`` after each block is stored (and once
+        at the start, counting the blocks found done).
 
     Returns
     -------
-    (k, n) ndarray of float64
+    (k, n) ndarray, or the Zarr array / ``.npy`` memory map ``out``, or with a client and no
+    ``out`` a lazy dask array of (chunk, n) blocks (compute or persist it)
         D[r, i] = distance from sources[r] to vertex i (+inf where unreachable).
     """
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
+    alpha_hat = check_weight(alpha_hat, "alpha_hat")
+    if dtype not in SCALARS:
+        raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
     if not isinstance(symmetrize, (bool, np.bool_)):
         raise ValueError(f"expected symmetrize as True or False, got {symmetrize!r}")
-    if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
-        raise ValueError(f"expected batch_size as an integer >= 1, got {batch_size!r}")
-    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, workers=workers)
+    if isinstance(chunk, (bool, np.bool_)) or not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
+        raise ValueError(f"expected chunk as an integer >= 1, got {chunk!r}")
+    if progress is not None and not callable(progress):
+        raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     n = mesh.n_vertices
-    if sources is None:
-        sources = np.arange(n)
-    src = np.asarray(sources)
+    src = np.arange(n) if sources is None else np.asarray(sources)
     if src.ndim != 1 or src.size == 0 or not np.issubdtype(src.dtype, np.integer):
         raise ValueError(f"expected sources as a non-empty 1-D array of vertex indices, got {sources!r}")
     if np.unique(src).size != src.size:
         raise ValueError(f"expected distinct source vertices, got {src.size - np.unique(src).size} repeated")
-    rows = np.empty((src.size, n))
-    for start in range(0, src.size, batch_size):
-        batch = src[start:start + batch_size]
-        rows[start:start + batch.size] = solver.solve_many([[s] for s in batch]).distance.T
+    if src.min() < 0 or src.max() >= n:
+        raise ValueError(f"expected sources in [0, {n - 1}], got {src.min() if src.min() < 0 else src.max()}")
+    src = src.astype(np.int64)
+    chunk = int(chunk)
+    problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype)
+    if client is not None:
+        from . import distributed
+
+        distributed.check_client(client)
+        if out is None:
+            if progress is not None:
+                raise ValueError(f"expected progress=None for a lazy dask array (client without out), got {progress!r}")
+            return distributed.lazy_matrix(client, mesh, problem, src, chunk, symmetrize)
+    fingerprint = dict(mesh_sha256=mesh_sha256(mesh), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
+                       sources_sha256=hashlib.sha256(src.tobytes()).hexdigest(), k=int(src.size), chunk=chunk,
+                       symmetrize=bool(symmetrize))
+    store = open_rows(out, (src.size, n), chunk, dtype, fingerprint)
+    todo = store.todo()
+    blocks = {b: src[b * chunk:(b + 1) * chunk] for b in todo}
+    if client is not None:
+        solved = distributed.solve_blocks(client, mesh, problem, blocks)
+    else:
+        solved = _solve_blocks_here(DistanceSolver(mesh, workers=workers, **problem), blocks) if blocks else iter(())
+    t0 = time.perf_counter()
+    done = store.blocks - len(todo)
+    if progress is not None:
+        progress(done, store.blocks, 0.0)
+    for block, rows, messages in solved:
+        for message in messages:
+            warnings.warn(message, ConvergenceWarning, stacklevel=2)
+        store.write(block, rows, src if symmetrize else None)
+        done += 1
+        if progress is not None:
+            progress(done, store.blocks, time.perf_counter() - t0)
     if symmetrize:
-        block = rows[:, src]
-        rows[:, src] = 0.5 * (block + block.T)
-    return rows
+        store.symmetrize(src)
+    return store.result()
+
+
+def solve_rows(solver, sources):
+    """Rows (len(sources), n) in the solver's dtype from one batched ADMM, and its warning messages.
+
+    A solve stopped by Ctrl-C raises KeyboardInterrupt: its unfinished rows are never stored.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        res = solver.solve_many([[s] for s in sources])
+    if res.get("interrupted", False):
+        raise KeyboardInterrupt
+    rows = res.distance.T.astype(solver.dtype)
+    for w in caught:
+        if not issubclass(w.category, ConvergenceWarning):
+            warnings.warn(w.message, w.category, stacklevel=2)
+    return rows, [str(w.message) for w in caught if issubclass(w.category, ConvergenceWarning)]
+
+
+def mesh_sha256(mesh):
+    """SHA-256 of the mesh's vertex positions and elements (float64 and int64 bytes, with shapes)."""
+    h = hashlib.sha256()
+    for a in (np.ascontiguousarray(mesh.vertices, dtype="<f8"), np.ascontiguousarray(mesh.elements, dtype="<i8")):
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _solve_blocks_here(solver, blocks):
+    for block, sources in blocks.items():
+        yield (block, *solve_rows(solver, sources))
