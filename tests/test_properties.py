@@ -150,8 +150,8 @@ def test_tightened_tolerances_converge(device):
 def test_worker_threads_give_the_same_columns(device):
     """24 float64 columns = 3 lane blocks on the shipped spot mesh, one batch vs three
     threads of one block each: every column, its iterations and residuals must be equal.
-    (Before the per-slot tolerances were moved along with compacted columns, a column's
-    CG tolerance depended on its batch and the two differed by 2.8e-6.)"""
+    A per-column tolerance left behind when columns are compacted makes a column's CG
+    tolerance depend on its batch (the two then differ by ~1e-6)."""
     mesh = wrd.load_mesh(os.path.join(os.path.dirname(wrd.__file__), "data", "spot_rr.off"))
     rng = np.random.default_rng(0)
     sets = [[int(i)] for i in rng.choice(mesh.n_vertices, size=24, replace=False)]
