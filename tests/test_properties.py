@@ -168,3 +168,16 @@ def test_bad_workers(workers):
     V, F = _bumpy_sphere()
     with pytest.raises(ValueError, match="expected workers as an integer >= 1 or None"):
         wrd.DistanceSolver(wrd.Mesh(V, F), workers=workers)
+
+
+def test_convergence_warnings_point_at_the_caller(device):
+    from warp_regdist.tolerances import tolerances
+
+    V, F = meshes.icosphere(1)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
+    with tolerances.override(max_iterations=10):
+        with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 1 of 1 source sets$") as one:
+            solver.solve([0])
+        with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 2 of 2 source sets$") as many:
+            solver.solve_many([[0], [5]])
+    assert [w.filename for w in one] == [__file__] and [w.filename for w in many] == [__file__]
