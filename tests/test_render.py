@@ -1,4 +1,4 @@
-"""Pictures (render.render_distance) and exact isolines (render.isolines)."""
+"""Pictures (render.render_distance) and exact isolines (contours.isolines)."""
 
 import numpy as np
 import pytest
