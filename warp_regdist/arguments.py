@@ -65,6 +65,9 @@ def parse_device(device):
 def _init_warp(keep_cuda_warning):
     """``wp.init()``; unless ``keep_cuda_warning``, its native stderr output (file descriptor 2)
     is captured and written back without the CUDA-driver line. No-op once Warp is initialized."""
+    context = getattr(getattr(wp, "_src", None), "context", None)  # Warp's runtime; absent: assume not started
+    if getattr(context, "runtime", None) is not None:
+        return
     if keep_cuda_warning:
         wp.init()
         return
