@@ -1,4 +1,4 @@
-"""This package vs the heat method vs exact polyhedral geodesics (SPEC section 7).
+"""This package vs the heat method vs exact polyhedral geodesics (docs/method.md section 7).
 
     python benchmarks/compare.py            # all meshes, tables, CSV, both pictures
     python benchmarks/compare.py --quick    # spot and the generated blob only, no pictures

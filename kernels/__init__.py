@@ -8,7 +8,7 @@ are built by cached factories per (scalar, W), one Warp module per family and ty
 each is compiled once and then loaded from the kernel cache.
 
 Each thread handles a chunk of ``chunk`` consecutive rows of one column block and adds
-its partial sums with a single atomic (chunk 64-256 on the CPU, 1 on CUDA).
+its partial sums with a single atomic (chunk 128 on the CPU, 1 on CUDA: lanes.chunk_size).
 """
 
 from .lanes import lane_type, chunk_size  # noqa: F401

@@ -1,4 +1,4 @@
-"""Per-element and per-vertex kernels of one ADMM iteration (SPEC section 4), column-batched.
+"""Per-element and per-vertex kernels of one ADMM iteration (docs/method.md section 4), column-batched.
 
 Shapes: u (n, nb); z, y (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
 dtype V. ``basis`` (m, k) vec3 are the hat-function gradients, ``vol`` (m,) the element

@@ -1,4 +1,4 @@
-"""Kernels of the symmetric all-pairs ADMM (SPEC section 5), column-batched.
+"""Kernels of the symmetric all-pairs ADMM (docs/method.md section 5), column-batched.
 
 Shapes: X, U, H, DZ, DZ_acc, DY_acc, rhs (n, nb) of lane vectors V (column j = lane j % W of block
 j // W, so row i of block b holds U[i, bW : bW + W]); v (m, 3, nb) per element and
@@ -128,15 +128,16 @@ def all_pairs_kernels(scalar, W):
     @wp.kernel(enable_backward=False, module=module)
     def consensus_step(X: wp.array2d(dtype=V), U: wp.array2d(dtype=V), H: wp.array2d(dtype=V),
                        vertex_vol: wp.array(dtype=V), rho2: scalar, relaxation: scalar,
-                       acc: wp.array(dtype=scalar), I0: int, n: int):
+                       acc: wp.array2d(dtype=scalar), I0: int, n: int):
         """U- and H-steps on the tile pair (I, J), (J, I) of W x W entries, I <= J, I = I0 + first
-        thread index (disjoint ranges of I may run in parallel, each with its own acc):
+        thread index (disjoint ranges of I may run in parallel):
 
             Xh = a X + (1 - a) U_old,
             U_ij = max(0, (1/2) ((H_ij + H_ji) / rho2 + Xh_ij + Xh_ji)),  U_ii = 0,
             H += rho2 (Xh - U),
         and the sums over entries, weighted by A_V[i] A_V[j], of (X - U)^2, X^2, U^2,
-        (U - U_old)^2, H^2 (new H) into acc[RX2, X2, U2, SX2, H2].
+        (U - U_old)^2, H^2 (new H) into row I of acc (nb, 5), columns RX2, X2, U2, SX2, H2 (one row
+        per tile row, so the totals do not depend on how the rows are split).
         """
         I, J = wp.tid()
         I += I0
@@ -202,11 +203,11 @@ def all_pairs_kernels(scalar, W):
                         ht[r] = HTn[r, l]
                     U[j, I] = ut
                     H[j, I] = ht
-        wp.atomic_add(acc, RX2, rx2)
-        wp.atomic_add(acc, X2, x2)
-        wp.atomic_add(acc, U2, u2)
-        wp.atomic_add(acc, SX2, sx2)
-        wp.atomic_add(acc, H2, h2)
+        wp.atomic_add(acc, I, RX2, rx2)
+        wp.atomic_add(acc, I, X2, x2)
+        wp.atomic_add(acc, I, U2, u2)
+        wp.atomic_add(acc, I, SX2, sx2)
+        wp.atomic_add(acc, I, H2, h2)
 
     return types.SimpleNamespace(element_step=element_step, vertex_step=vertex_step,
                                  consensus_step=consensus_step, V=V, V3=V3)

@@ -1,4 +1,4 @@
-"""Independent reference for the all-pairs problem on M x M (SPEC section 5, Algorithm 2's problem).
+"""Independent reference for the all-pairs problem on M x M (docs/method.md section 5, Algorithm 2's problem).
 
 Uses the numpy assembly of ``reference_solver`` (not ``warp_regdist``) and solves
 

@@ -1,4 +1,4 @@
-"""Closed-form minimizers of the continuous Dirichlet problem (SPEC section 6), raw alpha."""
+"""Closed-form minimizers of the continuous Dirichlet problem (docs/method.md section 6), raw alpha."""
 
 import numpy as np
 

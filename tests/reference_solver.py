@@ -1,4 +1,4 @@
-"""Independent reference for the discrete Dirichlet problem (SPEC section 2).
+"""Independent reference for the discrete Dirichlet problem (docs/method.md section 2).
 
 Assembles the per-face gradient, the face areas and the lumped vertex areas itself in
 numpy (deliberately not importing ``warp_regdist``), and solves

@@ -1,4 +1,4 @@
-"""The solver against the closed-form minimizers of SPEC section 6 (Dirichlet, raw alpha).
+"""The solver against the closed-form minimizers of docs/method.md section 6 (Dirichlet, raw alpha).
 
 Each test converts the raw alpha of the closed form to the solver's alpha_hat with the
 mesh's own total area, alpha_hat = alpha / sqrt(A), computed here in numpy.

@@ -2,7 +2,7 @@
 and the finite-element operators against exact values.
 
 The reference (tests/reference_solver.py) assembles G, a_f and A_V itself and solves
-SPEC section 2 with cvxpy + Clarabel to a duality gap of 1e-9. At tight ADMM tolerances
+docs/method.md section 2 with cvxpy + Clarabel to a duality gap of 1e-9. At tight ADMM tolerances
 the two must agree to 1e-3 of the maximal distance. Why a wrong implementation fails:
 doubling alpha (or the vertex areas, or using A instead of sqrt(A)) moves these
 minimizers by 5.7% and 6.7% of the maximum (the reference with 2 alpha; alpha = 0 moves

@@ -1,4 +1,4 @@
-"""The vector-field and Hessian regularizers (SPEC section 3) against independent solutions.
+"""The vector-field and Hessian regularizers (docs/method.md section 3) against independent solutions.
 
 The conic reference (tests/reference_solver.py, cvxpy + Clarabel) gets the regularizer
 matrix assembled here, independently of warp_regdist: W_V from the reference's own

@@ -1,4 +1,4 @@
-"""All-pairs regularized distance matrices on M x M (Algorithm 2 of the paper, SPEC section 5).
+"""All-pairs regularized distance matrices on M x M (Algorithm 2 of the paper, docs/method.md section 5).
 
 The distance matrix is the minimizer of
 
@@ -9,7 +9,7 @@ with alpha = alpha_hat sqrt(A). For a symmetric U both energy terms are equal, s
 column carries the Dirichlet energy twice: a column is close to the single-source
 distance with 2 alpha, not alpha.
 
-Symmetric ADMM. The consensus splitting of SPEC section 5 has the variables
+Symmetric ADMM. The consensus splitting of docs/method.md section 5 has the variables
 (X, R, U, Z, Q, Y, S, H, K). The problem is invariant under U -> U^T, and so is one ADMM
 iteration under the map (X, R, U, Z, Q, Y, S, H, K) -> (R, X, U^T, Q, Z, S, Y, K, H): the
 objective splits as f(X) + f(R), the column constraints of R are the row constraints of
@@ -24,7 +24,7 @@ exactly symmetric at every iteration. One iteration is: the X-step, one batched 
 the n columns with K2 = (alpha + rho) W_D + rho2 M_V (column j's optimality condition
 divided by A_V[j]); the fused z/y-step over elements x columns; the fused U/H-step over
 pairs of W x W tiles. Z and Y are stored together as one (3m, n) array (kernels/all_pairs.py).
-The seven residuals of SPEC section 5 are computed (r2 = r1, s2 = s1, rx2 = rx1 by the
+The seven residuals of docs/method.md section 5 are computed (r2 = r1, s2 = s1, rx2 = rx1 by the
 symmetry) and reported.
 
 Penalties and stopping test (defaults tuned against exact minimizers, see the README):
@@ -38,9 +38,11 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 
 from __future__ import annotations
 
-import concurrent.futures
+import hashlib
+import json
 import math
 import os
+import shutil
 import time
 import warnings
 
@@ -55,14 +57,16 @@ from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
-from .regularizers import check_weight
-from .solver import ConvergenceWarning, parse_device, parse_workers
+from .processes import SharedArrays, WorkerPool, processes_available
+from . import interrupt
+from .arguments import check_weight, parse_device, parse_workers
+from .solver import ConvergenceWarning
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
 
 RESIDUAL_NAMES = ("r1", "r2", "s1", "s2", "rx1", "rx2", "sx")
-"""The seven residuals of SPEC section 5, in the order of ``AllPairsResult.residuals``."""
+"""The seven residuals of docs/method.md section 5, in the order of ``AllPairsResult.residuals``."""
 
 
 class AllPairsResult(OptimizeResult):
@@ -126,148 +130,205 @@ def _even_splits(weights, parts):
     return np.unique(np.concatenate([[0], np.clip(cuts, 1, len(weights) - 1), [len(weights)]])).tolist()
 
 
-class _SymmetricADMM:
-    """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
+class _Setup:
+    """Host data that every part of the iteration needs (pickled to the worker processes)."""
 
-    On the CPU the column blocks are split into up to ``workers`` parts (at most one per 10^5
-    pairs) run by parallel threads (a CPU launch runs on one core): each part has its own PCG and its own launches of the
-    vertex and element steps on its columns, and the consensus step's tile pairs are split
-    into rows of about equal work. The results do not depend on the split.
-    """
-
-    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers):
-        n, m = mesh.n_vertices, mesh.n_elements
-        self.n, self.m = n, m
-        self.device, self.scalar = device, SCALARS[dtype]
-        self.ops = ops = build_operators(mesh)
+    def __init__(self, mesh, alpha_hat, dtype, rho2_factor, parts):
+        self.n, self.m = mesh.n_vertices, mesh.n_elements
+        self.dtype = dtype
+        ops = build_operators(mesh)
+        self.elements = mesh.elements.astype(np.int32)
+        self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
+        self.stiffness = ops.stiffness.tocsr()
+        self.A, self.L = ops.total_volume, ops.length_scale
         self.alpha = alpha_hat * ops.length_scale
-        self.W = W = lane_width(self.scalar, n)
-        self.nb = nb = -(-n // W)
-        self.kern = all_pairs_kernels(self.scalar, W)
-        sc, dev = self.scalar, device
-        V = lane_type(sc, W)
-        self.chunk = chunk_size(dev)
-        self.A = ops.total_volume
-        self.L = ops.length_scale
-        area = np.zeros(nb * W)
-        area[:n] = ops.vertex_volumes
-        self.column_area = area
-        self._elements = wp.array(mesh.elements.astype(np.int32), dtype=wp.int32, device=dev)
-        self._basis = wp.array(ops.basis, dtype=wp.types.vector(3, sc), device=dev)
-        self._volumes = wp.array(ops.element_volumes, dtype=sc, device=dev)
-        self._vertex_volumes = wp.array(ops.vertex_volumes, dtype=sc, device=dev)
-        self._lane_areas = wp.array(area.reshape(nb, W), dtype=V, device=dev)
-        # One row of column masks (1 on real columns, 0 on padding), broadcast to n rows by a zero stride.
-        self._mask_row = wp.array((area > 0).astype(np.float64).reshape(1, nb, W), dtype=V, device=dev)
-        self.mask = wp.array(ptr=self._mask_row.ptr, shape=(n, nb), strides=(0, self._mask_row.strides[1]),
-                             dtype=V, device=dev)
-        self.X, self.U, self.H, self.DZ, self.DZ_acc, self.DY_acc, self.rhs = (
-            wp.zeros((n, nb), dtype=V, device=dev) for _ in range(7))
-        self.v = wp.zeros((m, 3, nb), dtype=V, device=dev)
-        self.acc = wp.zeros((5, nb), dtype=V, device=dev)
-        mass = sp.diags(ops.vertex_volumes)
-        self._mass = mass
+        self.W = lane_width(SCALARS[dtype], self.n)
+        self.nb = -(-self.n // self.W)
+        self.relaxation = tolerances.relaxation
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
         # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
-        K_mid = self._matrix(1.0, rho2_factor * math.sqrt(tolerances.rho0 * tolerances.rho_max) / self.A)
-        hierarchy = smoothed_aggregation(K_mid)
+        self.K_mid = self.matrix(1.0, rho2_factor * math.sqrt(tolerances.rho0 * tolerances.rho_max) / self.A)
+        self.hierarchy = smoothed_aggregation(self.K_mid)
+        self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
+        self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
+
+    def matrix(self, stiffness_weight, mass_weight):
+        """K2 = stiffness_weight W_D + mass_weight M_V."""
+        return (stiffness_weight * self.stiffness + mass_weight * sp.diags(self.vertex_volumes)).tocsr()
+
+    def state_specs(self):
+        """Shapes and numpy dtypes of the iteration's state (lane axis last)."""
+        n, m, nb, W, dt = self.n, self.m, self.nb, self.W, np.dtype(self.dtype)
+        specs = {name: ((n, nb, W), dt) for name in STATE_ROWS}
+        specs.update(v=((m, 3, nb, W), dt), rhs=((n, nb, W), dt), acc=((5, nb, W), dt), acc_pairs=((nb, 5), dt))
+        return specs
+
+
+STATE_ROWS = ("X", "U", "H", "DZ", "DZ_acc", "DY_acc")
+"""The (n, n) state arrays; with ``v`` (3m, n) they are what a checkpoint holds."""
+
+
+class _Part:
+    """Part t of one iteration: column blocks [b_t, b_t+1) of the vertex, X- (its own PCG) and
+    element steps, and consensus tile rows [i_t, i_t+1). Built in the calling process (t = 0)
+    or in a worker process on the same shared state."""
+
+    def __init__(self, setup, arrays, t):
+        sc = SCALARS[setup.dtype]
+        V = lane_type(sc, setup.W)
+        if isinstance(arrays, SharedArrays):
+            self._shared = arrays  # the mapping lives as long as its views
+            arrays = {name: arrays.warp(name, sc if name == "acc_pairs" else V) for name in setup.state_specs()}
+        self.setup = setup
+        self.scalar = sc
+        dev = arrays["X"].device
+        n, m, nb, W = setup.n, setup.m, setup.nb, setup.W
+        chunk = chunk_size(dev)
+        k = all_pairs_kernels(sc, W)
+        b0, b1 = setup.blocks[t], setup.blocks[t + 1]
+        i0, i1 = setup.rows[t], setup.rows[t + 1]
+        cols = slice(b0, b1)
+        area = np.zeros(nb * W)
+        area[:n] = setup.vertex_volumes
+        self._arrays = dict(
+            elements=wp.array(setup.elements, dtype=wp.int32, device=dev),
+            basis=wp.array(setup.basis, dtype=wp.types.vector(3, sc), device=dev),
+            volumes=wp.array(setup.volumes, dtype=sc, device=dev),
+            vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
+            lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
+            # one row of column masks (1 on real columns, 0 on padding), broadcast to n rows by a zero stride
+            mask_row=wp.array((area > 0).astype(np.float64)[b0 * W:b1 * W].reshape(1, b1 - b0, W), dtype=V,
+                              device=dev))
+        a = self._arrays
+        self.mask = wp.array(ptr=a["mask_row"].ptr, shape=(n, b1 - b0), strides=(0, a["mask_row"].strides[1]),
+                             dtype=V, device=dev)
+        self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
+        self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy)
+        self.vertex = wp.launch(k.vertex_step, ((n + chunk - 1) // chunk, b1 - b0), device=dev, record_cmd=True,
+                                inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
+                                + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
+                                + [chunk, n])
+        self.element = wp.launch(k.element_step, ((m + chunk - 1) // chunk, b1 - b0), device=dev, record_cmd=True,
+                                 inputs=[a["elements"], a["basis"], a["volumes"], self.X, arrays["v"][:, :, cols],
+                                         sc(1.0), sc(1.0), sc(setup.relaxation), arrays["DZ_acc"][:, cols],
+                                         arrays["DY_acc"][:, cols], arrays["acc"][:, cols], chunk, m])
+        self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
+            arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
+            arrays["acc_pairs"], i0, n])
+        self.columns = slice(b0 * W, b1 * W)
+
+    def set_penalties(self, stiffness_weight, mass_weight):
+        self.pcg.set_matrix(self.setup.matrix(stiffness_weight, mass_weight))
+
+    def right_hand_side(self, rho, rho2):
+        self.vertex.set_param_by_name("rho", self.scalar(rho))
+        self.vertex.set_param_by_name("rho2", self.scalar(rho2))
+        self.vertex.launch()
+
+    def x_and_element_steps(self, atol, rtol, max_iterations, rho_v, rho):
+        """The X-step's PCG on this part's columns, then their z/y-step; returns the CG iterations."""
+        it, _ = self.pcg.solve(self.rhs, self.X, self.mask, rtol, max_iterations, atol[self.columns])
+        self.element.set_param_by_name("rho_v", self.scalar(rho_v))
+        self.element.set_param_by_name("rho", self.scalar(rho))
+        self.element.launch()
+        return it
+
+    def consensus_step(self, rho2):
+        self.consensus.set_param_by_name("rho2", self.scalar(rho2))
+        self.consensus.launch()
+
+
+class _SymmetricADMM:
+    """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
+
+    On the CPU the iteration is split into up to ``workers`` parts (at most one per 10^5
+    pairs), each run by its own process on state in shared memory (a CPU launch runs on one
+    core): the part in this process and the others in :class:`~warp_regdist.processes.WorkerPool`
+    workers meet three times per iteration. Every sum that decides the iteration is made per
+    column or per consensus tile row, so the iterates do not depend on the split.
+    """
+
+    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers):
+        n = mesh.n_vertices
+        parts = 1 if device.is_cuda or not processes_available() else max(1, min(workers, n * n // 100_000))
+        self.setup = setup = _Setup(mesh, alpha_hat, dtype, rho2_factor, parts)
+        self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
+        self.column_area = np.zeros(setup.nb * setup.W)
+        self.column_area[:n] = setup.vertex_volumes
+        sc = SCALARS[dtype]
+        V = lane_type(sc, setup.W)
+        specs = setup.state_specs()
+        self.shared = SharedArrays(specs) if parts > 1 else None
+        self.arrays = {name: (self.shared.warp(name, sc if name == "acc_pairs" else V) if self.shared else
+                              wp.zeros(shape[:-1] if name != "acc_pairs" else shape, dtype=sc if name == "acc_pairs"
+                                       else V, device=device))
+                       for name, (shape, _) in specs.items()}
+        self.part = _Part(setup, self.arrays, 0)
+        self.pool = (WorkerPool(_Part, (setup, self.shared), parts - 1, first_index=1, shared=[self.shared])
+                     if parts > 1 else None)
         self.rho_v = 1.0  # the rho that formed v (any value while v = 0)
-        self.rho = self.rho2 = None
-        k = self.kern
-        # threads meet three times per iteration (~0.1 ms each): only worth it from ~10^5 pairs per thread
-        T = 1 if dev.is_cuda else max(1, min(workers, n * n // 100_000))
-        self.blocks = _even_splits(np.ones(nb), T)  # column blocks [b_t, b_t+1) of part t
-        self.rows = _even_splits(nb - np.arange(nb), T)  # consensus tile rows I (row I has nb - I pairs)
-        self.pcgs, self._vertex, self._element, self._consensus = [], [], [], []
-        for b0, b1 in zip(self.blocks[:-1], self.blocks[1:]):
-            cols = slice(b0, b1)
-            self.pcgs.append(BatchedPCG(K_mid, sc, W, b1 - b0, dev, preconditioner=hierarchy))
-            elem_dim = ((m + self.chunk - 1) // self.chunk, b1 - b0)
-            vert_dim = ((n + self.chunk - 1) // self.chunk, b1 - b0)
-            self._vertex.append(wp.launch(k.vertex_step, vert_dim, device=dev, record_cmd=True, inputs=[
-                self._vertex_volumes, self.mask[:, cols], sc(1.0), sc(1.0), self.H[:, cols], self.U[:, cols],
-                self.DZ_acc[:, cols], self.DY_acc[:, cols], self.DZ[:, cols], self.rhs[:, cols],
-                self.acc[:, cols], self.chunk, n]))
-            self._element.append(wp.launch(k.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
-                self._elements, self._basis, self._volumes, self.X[:, cols], self.v[:, :, cols], sc(1.0), sc(1.0),
-                sc(tolerances.relaxation), self.DZ_acc[:, cols], self.DY_acc[:, cols], self.acc[:, cols],
-                self.chunk, m]))
-        self.acc_pairs = wp.zeros((len(self.rows) - 1, 5), dtype=sc, device=dev)
-        for t, (i0, i1) in enumerate(zip(self.rows[:-1], self.rows[1:])):
-            self._consensus.append(wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
-                self.X, self.U, self.H, self._lane_areas, sc(1.0), sc(tolerances.relaxation), self.acc_pairs[t],
-                i0, n]))
-        self._pool = concurrent.futures.ThreadPoolExecutor(len(self.pcgs)) if len(self.pcgs) > 1 else None
+        self.penalties = None  # (rho, rho2) of the PCG matrices
 
     def close(self):
-        """Stop the worker threads."""
-        if self._pool is not None:
-            self._pool.shutdown()
+        """End the worker processes."""
+        if self.pool is not None:
+            self.pool.close()
 
-    def _each(self, work, count):
-        """[work(t) for t in range(count)], in the worker threads when there are several."""
-        if self._pool is None or count == 1:
-            return [work(t) for t in range(count)]
-        return list(self._pool.map(work, range(count)))
-
-    def _matrix(self, stiffness_weight, mass_weight):
-        return (stiffness_weight * self.ops.stiffness + mass_weight * self._mass).tocsr()
+    def _each(self, method, *args):
+        """part.method(*args) in every part, this process's while the workers run theirs."""
+        if self.pool is None:
+            return [getattr(self.part, method)(*args)]
+        self.pool.start(method, [args] * len(self.pool))
+        try:
+            mine = getattr(self.part, method)(*args)
+        finally:
+            others = self.pool.finish()
+        return [mine] + others
 
     def set_penalties(self, rho, rho2):
-        if (rho, rho2) != (self.rho, self.rho2):
-            K2 = self._matrix(self.alpha + rho, rho2)
-            for pcg in self.pcgs:
-                pcg.set_matrix(K2)
-            self.rho, self.rho2 = rho, rho2
+        if (rho, rho2) != self.penalties:
+            self._each("set_penalties", self.alpha + rho, rho2)
+            self.penalties = (rho, rho2)
 
     def right_hand_side(self):
         """rhs of the X-step and D Z; returns per-column |D(Z - Z_old)|^2 and |D Y|^2 (nb W,)."""
-        sc = self.scalar
-        self.acc.zero_()
-        for launch in self._vertex:
-            for name, value in (("rho", self.rho), ("rho2", self.rho2)):
-                launch.set_param_by_name(name, sc(value))
-        self._each(lambda t: self._vertex[t].launch(), len(self._vertex))
-        acc = self.acc.numpy().reshape(5, -1)
+        self.arrays["acc"].zero_()
+        self._each("right_hand_side", *self.penalties)
+        acc = self.arrays["acc"].numpy().reshape(5, -1)
         return acc[S2].astype(np.float64), acc[DY2].astype(np.float64)
 
     def x_and_element_steps(self, atol, rtol, max_iterations):
         """X-step (PCG) then z/y-step of every part; returns the largest PCG iteration count."""
-        sc = self.scalar
-        self.acc.zero_()
-        for launch in self._element:
-            launch.set_param_by_name("rho_v", sc(self.rho_v))
-            launch.set_param_by_name("rho", sc(self.rho))
-        self.rho_v = self.rho
-        W, b = self.W, self.blocks
-
-        def part(t):
-            cols = slice(b[t], b[t + 1])
-            it, _ = self.pcgs[t].solve(self.rhs[:, cols], self.X[:, cols], self.mask[:, cols], rtol, max_iterations,
-                                       atol[b[t] * W:b[t + 1] * W])
-            self._element[t].launch()
-            return it
-
-        return max(self._each(part, len(self.pcgs)))
+        self.arrays["acc"].zero_()
+        rho = self.penalties[0]
+        its = self._each("x_and_element_steps", atol, rtol, max_iterations, self.rho_v, rho)
+        self.rho_v = rho
+        return max(its)
 
     def consensus(self):
         """U/H-step; returns (per-column R2, GX2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
-        self.acc_pairs.zero_()
-        for launch in self._consensus:
-            launch.set_param_by_name("rho2", self.scalar(self.rho2))
-        self._each(lambda t: self._consensus[t].launch(), len(self._consensus))
-        acc = self.acc.numpy().reshape(5, -1)
-        return acc[[R2, GX2, Z2]].astype(np.float64), self.acc_pairs.numpy().astype(np.float64).sum(axis=0)
+        self.arrays["acc_pairs"].zero_()
+        self._each("consensus_step", self.penalties[1])
+        acc = self.arrays["acc"].numpy().reshape(5, -1)
+        pairs = self.arrays["acc_pairs"].numpy().astype(np.float64).sum(axis=0)  # fixed order: tile rows
+        return acc[[R2, GX2, Z2]].astype(np.float64), pairs
 
     def distance(self):
         """U as an (n, n) float64 array (the U-step writes the same value to U_ij and U_ji)."""
-        return self.U.numpy().reshape(self.n, -1)[:, :self.n].astype(np.float64)
+        return self.arrays["U"].numpy().reshape(self.n, -1)[:, :self.n].astype(np.float64)
+
+    def get(self, name):
+        """A copy of state array ``name`` as numpy (lane axis last)."""
+        return np.array(self.arrays[name].numpy())
+
+    def put(self, name, values):
+        self.arrays[name].assign(values)
 
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, eps_rel=5e-4,
               eps_rel_consensus=5e-5, eps_rel_dual=1e-2, rho2_factor=25.0, cg_fraction=1e-3, progress=None,
-              workers=None):
+              workers=None, checkpoint=None, checkpoint_seconds=300.0, resume=None):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh.
 
     Parameters
@@ -287,7 +348,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         rx1 <= eps_rel_consensus min(|S_V X S_V|, |S_V U S_V|),
         s1 <= eps_rel_dual max(|D Y M_V|, |A_V| |A_V| / 2), sx <= eps_rel_dual max(|S_V H S_V|, A / 2)
         (r2, s2, rx2 equal r1, s1, rx1 by symmetry; the floors are the scale of the X-step's
-        load), plus the absolute terms of SPEC section 5 with ``tolerances.eps_abs`` (0 by
+        load), plus the absolute terms of docs/method.md section 5 with ``tolerances.eps_abs`` (0 by
         default). All must be finite and > 0.
         The defaults stopped 0.2-0.8% of the maximal distance away from the exact minimizer
         on the meshes we measured (README).
@@ -301,18 +362,33 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
         elapsed seconds, memory bytes).
     workers : int or None
-        CPU threads that share every step's columns (None: the cores available to the
-        process; ignored on CUDA). The result does not depend on it.
+        CPU processes that share every step (None: the cores available to this process;
+        ignored on CUDA and off Linux). The result does not depend on it.
+    checkpoint : str or os.PathLike or None
+        File (.npz) to which the whole state (iterates, duals, penalties, iteration count,
+        residual history and the problem's fingerprint: mesh hash, alpha_hat, dtype,
+        rho2_factor) is written atomically (a temporary file renamed over it) every
+        ``checkpoint_seconds``, when the iteration cap is reached unconverged, and when the
+        run is interrupted. Refused before any allocation when the file system lacks the room.
+    checkpoint_seconds : float
+        Interval between checkpoints (> 0).
+    resume : str or os.PathLike or None
+        A checkpoint of the same problem to continue from; with the same dtype the result is
+        the same matrix as an uninterrupted run's. (May equal ``checkpoint``.)
 
     Returns
     -------
     AllPairsResult
+        Ctrl-C (SIGINT) stops the run at the end of the current iteration: the result holds the
+        current iterate with ``converged=False`` and ``interrupted=True`` (and the checkpoint is
+        written); a second Ctrl-C raises KeyboardInterrupt at once.
 
     Raises
     ------
     ValueError
-        Bad arguments, a mesh with several connected components, vertices in no face, or
-        a footprint above the available memory (the message gives both).
+        Bad arguments, a mesh with several connected components, vertices in no face, a
+        footprint above the available memory or a checkpoint above the free disk space (the
+        message gives both), or a resume file of another problem.
     """
     t0 = time.perf_counter()
     if not isinstance(mesh, Mesh):
@@ -321,7 +397,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         raise ValueError(f"expected a triangle mesh, got {mesh.n_elements} tetrahedra")
     alpha_hat = check_weight(alpha_hat, "alpha_hat")
     for name, value in (("eps_rel", eps_rel), ("eps_rel_consensus", eps_rel_consensus),
-                        ("eps_rel_dual", eps_rel_dual), ("rho2_factor", rho2_factor), ("cg_fraction", cg_fraction)):
+                        ("eps_rel_dual", eps_rel_dual), ("rho2_factor", rho2_factor), ("cg_fraction", cg_fraction),
+                        ("checkpoint_seconds", checkpoint_seconds)):
         check_weight(value, name, positive=True)
     workers = parse_workers(workers)
     if progress is not None and not callable(progress):
@@ -337,7 +414,10 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if labels.max() > 0:
         raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
                          "(solve each component separately)")
-    wp.init()
+    fingerprint = _fingerprint(mesh, alpha_hat, dtype, rho2_factor)
+    saved = _read_checkpoint(resume, fingerprint) if resume is not None else None
+    if checkpoint is not None:
+        _check_checkpoint_room(checkpoint, checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations))
     dev = parse_device(device)
     n, m = mesh.n_vertices, mesh.n_elements
     device_bytes, host_bytes = memory_estimate(n, m, dtype, dev)
@@ -357,60 +437,182 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
 
     state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers)
     try:
-        return _run(state, t0, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                    cg_fraction, progress)
+        run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
+                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint)
+        if saved is not None:
+            run.restore(saved)
+        return run.iterate(t0)
     finally:
         state.close()
 
 
-def _run(state, t0, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor, cg_fraction,
-         progress):
-    """The ADMM iterations of :func:`all_pairs` on ``state``; returns the AllPairsResult."""
-    n, m = state.n, state.m
-    tol = tolerances
-    A, L = state.A, state.L
-    w = state.column_area
-    history = []
-    res = np.zeros(7)
-    eps = np.ones(7)
-    cg_total = 0
-    converged = False
-    pairs = None
-    # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and
-    # M_V H balance in the X-step; Y (and H) vanish where no gradient constraint is active,
-    # which can be everywhere (a large alpha_hat), and a test relative to them alone never holds.
-    load_norm = 0.5 * np.linalg.norm(state.ops.vertex_volumes) * np.linalg.norm(w)
-    it = 0
-    for it in range(max_iterations + 1):
-        rho_old, rho2_old = state.rho, state.rho2
-        rho = L * min(tol.rho_max, tol.rho0 * 2.0 ** (it / tol.rho_doubling))
-        state.set_penalties(rho, rho2_factor * rho * rho / (L * A))
-        s2, dy2 = state.right_hand_side()
+def checkpoint_bytes(n, m, dtype, max_iterations):
+    """Upper bound of the size of an all-pairs checkpoint file: the (n, n) state arrays and the
+    (3m, n) element state in ``dtype`` (lanes padded), the residual history, small scalars."""
+    W = lane_width(SCALARS[dtype], n)
+    cols = -(-n // W) * W
+    return np.dtype(dtype).itemsize * cols * (len(STATE_ROWS) * n + 3 * m + 8) + 56 * (max_iterations + 1) + 65536
+
+
+def _check_checkpoint_room(path, size):
+    """ValueError unless ``path`` can be written and its file system has ``size`` bytes free."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"expected checkpoint in an existing directory, got {path!r} (no directory {folder!r})")
+    if os.path.isdir(path) or not os.access(folder, os.W_OK):
+        raise ValueError(f"expected checkpoint as a writable file name, got {path!r}")
+    free = shutil.disk_usage(folder).free
+    if size > free:
+        raise ValueError(f"expected {size / 1e9:.2f} GB free for the checkpoint {path!r}, got {free / 1e9:.2f} GB "
+                         f"free on its file system")
+
+
+def _fingerprint(mesh, alpha_hat, dtype, rho2_factor):
+    """What identifies the problem of a checkpoint (JSON-able dict)."""
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(mesh.elements, dtype=np.int64).tobytes())
+    return dict(mesh_sha256=digest.hexdigest(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
+                dtype=dtype, rho2_factor=float(rho2_factor))
+
+
+def _read_checkpoint(path, fingerprint):
+    """The arrays of checkpoint ``path`` after checking that it is one of this problem."""
+    try:
+        with np.load(os.fspath(path), allow_pickle=False) as f:
+            saved = {k: f[k] for k in f.files}
+        theirs = json.loads(str(saved["fingerprint"]))
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise ValueError(f"expected resume as an all-pairs checkpoint (.npz), got {os.fspath(path)!r} "
+                         f"({type(exc).__name__}: {exc})") from None
+    differ = [k for k in fingerprint if theirs.get(k) != fingerprint[k]]
+    if differ:
+        shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
+        got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
+        raise ValueError(f"expected a checkpoint of this problem ({shown}), got one of another problem ({got}) "
+                         f"in {os.fspath(path)!r}")
+    return saved
+
+
+class _Run:
+    """The ADMM iterations of :func:`all_pairs` on a :class:`_SymmetricADMM`, with checkpoints.
+
+    A checkpoint is the state at the top of an iteration: the state arrays, the penalties that
+    formed the last iterate, the last element and consensus sums (the residuals of that
+    iterate are computed from them) and the history; so a run restored from it repeats the
+    uninterrupted run's arithmetic exactly.
+    """
+
+    def __init__(self, state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
+                 cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint):
+        self.state, self.memory, self.max_iterations = state, memory, max_iterations
+        self.eps_rel, self.eps_rel_consensus, self.eps_rel_dual = eps_rel, eps_rel_consensus, eps_rel_dual
+        self.rho2_factor, self.cg_fraction, self.progress = rho2_factor, cg_fraction, progress
+        self.checkpoint, self.checkpoint_seconds, self.fingerprint = checkpoint, checkpoint_seconds, fingerprint
+        self.start = 0
+        self.history = []
+        self.cg_total = 0
+        self.cols = self.pairs = None
+        self.last_penalties = None
+        self.seconds_before = 0.0
+
+    def restore(self, saved):
+        st = self.state
+        for name in STATE_ROWS + ("v",):
+            st.put(name, saved[name])
+        st.rho_v = float(saved["rho_v"])
+        self.start = int(saved["iteration"])
+        if self.start > 0:
+            self.last_penalties = tuple(float(x) for x in saved["penalties"])
+            self.cols, self.pairs = saved["cols"], saved["pairs"]
+        self.history = list(saved["history"])
+        self.cg_total = int(saved["cg_iterations"])
+        self.seconds_before = float(saved["seconds"])
+
+    def save(self, it, seconds):
+        """Write the state at the top of iteration ``it`` to the checkpoint file, atomically."""
+        st = self.state
+        data = {name: st.get(name) for name in STATE_ROWS + ("v",)}
+        data.update(iteration=np.array(it), rho_v=np.array(st.rho_v), cg_iterations=np.array(self.cg_total),
+                    seconds=np.array(seconds), history=np.array(self.history).reshape(-1, 7),
+                    fingerprint=np.array(json.dumps(self.fingerprint)))
         if it > 0:
-            r1 = math.sqrt(w @ cols[0])
-            s1 = rho_old * math.sqrt((w * w) @ s2)
-            rx = math.sqrt(pairs[RX2])
-            sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
-            eps_p = tol.eps_abs * math.sqrt(3 * m) * A + eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
-            eps_d = tol.eps_abs * math.sqrt(n) * A * A + eps_rel_dual * max(math.sqrt((w * w) @ dy2), load_norm)
-            eps_x = tol.eps_abs * math.sqrt(n) * A ** 1.5 + eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2]))
-            eps_dx = tol.eps_abs * math.sqrt(n) * A + eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
-            res = np.array([r1, r1, s1, s1, rx, rx, sx])
-            eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
-            history.append(res / np.maximum(eps, 1e-300))
-            if progress is not None:
-                progress(it, res, eps, time.perf_counter() - t0, memory)
-            if np.all(res <= eps):
-                converged = True
-                break
-            if it == max_iterations:
-                break
-        atol = cg_fraction * (np.sqrt(dy2) + 0.5 * np.linalg.norm(state.ops.vertex_volumes))
-        cg_total += state.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
-        cols, pairs = state.consensus()
-    if not converged:
-        warnings.warn(f"all-pairs ADMM did not converge in {max_iterations} iterations "
-                      f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning, stacklevel=3)
-    return AllPairsResult(distance=state.distance(), iterations=it, converged=converged, residuals=res,
-                          tolerance=eps, history=np.array(history).reshape(-1, 7), cg_iterations=cg_total,
-                          seconds=time.perf_counter() - t0, memory_bytes=memory)
+            data.update(penalties=np.array(self.last_penalties), cols=self.cols, pairs=self.pairs)
+        path = os.fspath(self.checkpoint)
+        tmp = f"{path}.tmp{os.getpid()}"
+        try:
+            with open(tmp, "wb") as f:
+                np.savez(f, **data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+
+    def iterate(self, t0):
+        st = self.state
+        n, m = st.n, st.m
+        tol = tolerances
+        A, L = st.A, st.L
+        w = st.column_area
+        res = np.zeros(7)
+        eps = np.ones(7)
+        converged = interrupted = False
+        # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and
+        # M_V H balance in the X-step; Y (and H) vanish where no gradient constraint is active,
+        # which can be everywhere (a large alpha_hat), and a test relative to them alone never holds.
+        load_norm = 0.5 * np.linalg.norm(st.setup.vertex_volumes) * np.linalg.norm(w)
+        last_save = time.perf_counter()
+        it = self.start
+        with interrupt.catch_interrupt():
+            for it in range(self.start, self.max_iterations + 1):
+                elapsed = self.seconds_before + time.perf_counter() - t0
+                if self.checkpoint is not None and it > self.start and (
+                        interrupt.requested() or it == self.max_iterations
+                        or time.perf_counter() - last_save >= self.checkpoint_seconds):
+                    self.save(it, elapsed)
+                    last_save = time.perf_counter()
+                if interrupt.requested():
+                    interrupted = True
+                    break
+                rho = L * min(tol.rho_max, tol.rho0 * 2.0 ** (it / tol.rho_doubling))
+                st.set_penalties(rho, self.rho2_factor * rho * rho / (L * A))
+                s2, dy2 = st.right_hand_side()
+                if it > 0:
+                    rho_old, rho2_old = self.last_penalties
+                    cols, pairs = self.cols, self.pairs
+                    r1 = math.sqrt(w @ cols[0])
+                    s1 = rho_old * math.sqrt((w * w) @ s2)
+                    rx = math.sqrt(pairs[RX2])
+                    sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
+                    eps_p = tol.eps_abs * math.sqrt(3 * m) * A + self.eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
+                    eps_d = (tol.eps_abs * math.sqrt(n) * A * A
+                             + self.eps_rel_dual * max(math.sqrt((w * w) @ dy2), load_norm))
+                    eps_x = (tol.eps_abs * math.sqrt(n) * A ** 1.5
+                             + self.eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2])))
+                    eps_dx = tol.eps_abs * math.sqrt(n) * A + self.eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
+                    res = np.array([r1, r1, s1, s1, rx, rx, sx])
+                    eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
+                    self.history.append(res / np.maximum(eps, 1e-300))
+                    if self.progress is not None:
+                        self.progress(it, res, eps, elapsed, self.memory)
+                    if np.all(res <= eps):
+                        converged = True
+                        break
+                    if it == self.max_iterations:
+                        break
+                atol = self.cg_fraction * (np.sqrt(dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
+                self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
+                self.last_penalties = st.penalties
+                self.cols, self.pairs = st.consensus()
+        if not converged and not interrupted:
+            warnings.warn(f"all-pairs ADMM did not converge in {self.max_iterations} iterations "
+                          f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning,
+                          stacklevel=3)
+        return AllPairsResult(distance=st.distance(), iterations=it, converged=converged, interrupted=interrupted,
+                              residuals=res, tolerance=eps, history=np.array(self.history).reshape(-1, 7),
+                              cg_iterations=self.cg_total, seconds=self.seconds_before + time.perf_counter() - t0,
+                              memory_bytes=self.memory,
+                              checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint))

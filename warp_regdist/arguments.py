@@ -38,7 +38,7 @@ def check_weight(value, name, positive=False):
 
 
 def parse_workers(workers):
-    """Number of CPU threads: ``workers`` (an integer >= 1) or, for None, the cores available."""
+    """Number of CPU worker processes: ``workers`` (an integer >= 1) or, for None, the cores available."""
     if workers is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:

@@ -1,4 +1,4 @@
-"""Regularized geodesic distance from source sets: ADMM (Algorithm 1 of the paper, SPEC section 4).
+"""Regularized geodesic distance from source sets: ADMM (Algorithm 1 of the paper; docs/method.md sections 4 and 8).
 
 For each source set E the solver returns the minimizer of
 
@@ -18,9 +18,8 @@ iteration for W_V, 8-35 for W_H, where a hierarchy built for alpha W_H + rho W_D
 
 from __future__ import annotations
 
-import concurrent.futures
+import dataclasses
 import math
-import os
 import sys
 import time
 import warnings
@@ -36,8 +35,11 @@ from .kernels.pcg import pcg_kernels
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
+from . import interrupt
 from .pcg import BatchedPCG
-from .regularizers import build_regularizer, check_weight
+from .processes import WorkerPool, processes_available
+from .arguments import check_weight, parse_device, parse_workers
+from .regularizers import build_regularizer
 from .tolerances import tolerances
 
 __all__ = ["DistanceSolver", "DistanceResult", "ConvergenceWarning"]
@@ -64,25 +66,10 @@ class DistanceResult(OptimizeResult):
         PCG iterations summed over ADMM iterations (shared by all columns of a batch).
     seconds : float
         Wall time of the solve.
+    interrupted : bool
+        True when Ctrl-C stopped the solve: the columns not yet converged hold their current
+        iterate and ``converged`` False.
     """
-
-
-def parse_device(device):
-    """The Warp device named ``device`` (None: Warp's default); ValueError naming the available ones."""
-    try:
-        return wp.get_device(device)
-    except Exception:
-        names = [str(d) for d in wp.get_devices()]
-        raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
-
-
-def parse_workers(workers):
-    """Number of CPU threads: ``workers`` (an integer >= 1) or, for None, the cores available."""
-    if workers is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"expected workers as an integer >= 1 or None, got {workers!r}")
-    return int(workers)
 
 
 class DistanceSolver:
@@ -95,7 +82,7 @@ class DistanceSolver:
     alpha_hat : float
         Scale-invariant regularization weight >= 0 (0: the discrete geodesic distance).
     regularizer : {"dirichlet", "vector_field", "hessian"}
-        The quadratic regularizer W (SPEC section 3). "hessian" needs a triangle mesh and
+        The quadratic regularizer W (docs/method.md section 3). "hessian" needs a triangle mesh and
         stops at tolerances / 20.
     beta_hat : float or None
         Alignment weight >= 0 of "vector_field" (default 10; scale-invariant).
@@ -108,15 +95,21 @@ class DistanceSolver:
     dtype : {"float64", "float32"}
         Precision of the solver's arrays (float32 halves memory; agreement ~1e-3).
     workers : int or None
-        CPU threads for :meth:`solve_many`: a CPU kernel launch runs on one core, so the
-        source sets are split into up to ``workers`` independent batches (whole lane blocks)
-        solved in parallel threads. None: the cores available to the process. Ignored on
-        CUDA (one batch fills the GPU). Each column's result does not depend on it.
+        CPU processes for :meth:`solve_many`: a CPU kernel launch runs on one core, so the
+        source sets are split into up to ``workers`` independent batches (whole lane blocks),
+        one solved in this process and the others in worker processes that build their own
+        copy of the solver at the first such call and are kept for the next ones (see
+        :meth:`close`). None: the cores available to the process. Ignored on CUDA (one batch
+        fills the GPU) and off Linux. Each column's result does not depend on it.
 
     Examples
     --------
     >>> solver = DistanceSolver(load_mesh("spot.off"), alpha_hat=0.05)
     >>> u = solver.solve([2272]).distance
+
+    Ctrl-C during :meth:`solve` or :meth:`solve_many` stops at the end of the current ADMM
+    iteration and returns the current iterate (``interrupted=True``, unconverged columns
+    ``converged=False``); a second Ctrl-C raises KeyboardInterrupt.
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
@@ -127,9 +120,11 @@ class DistanceSolver:
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
         workers = parse_workers(workers)
-        wp.init()
         self.device = parse_device(device)
-        self.workers = 1 if self.device.is_cuda else workers
+        self.workers = 1 if self.device.is_cuda or not processes_available() else workers
+        self._copy_arguments = dict(mesh=mesh, alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
+                                    vector_field=vector_field, dtype=dtype)
+        self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
@@ -185,7 +180,7 @@ class DistanceSolver:
     # ------------------------------------------------------------------ public API
     def solve(self, sources, verbose=False):
         """Distance from one source set (iterable of vertex indices); see :class:`DistanceResult`."""
-        res = self.solve_many([sources], verbose=verbose)
+        res = self._solve_many([sources], verbose)
         for key in ("iterations", "converged", "primal_residual", "dual_residual"):
             res[key] = res[key][0].item()
         res["distance"] = res["distance"][:, 0]
@@ -193,6 +188,10 @@ class DistanceSolver:
 
     def solve_many(self, source_sets, verbose=False):
         """Distances from k source sets as one batched ADMM: ``distance`` is (n, k)."""
+        return self._solve_many(source_sets, verbose)
+
+    def _solve_many(self, source_sets, verbose):
+        """The work of :meth:`solve_many`; its warnings name the caller of solve / solve_many."""
         if isinstance(source_sets, (str, bytes)) or not hasattr(source_sets, "__iter__"):
             raise ValueError(f"expected a list of source sets, got {source_sets!r}")
         sets = [self._source_mask(s, j) for j, s in enumerate(source_sets)]
@@ -205,30 +204,34 @@ class DistanceSolver:
         # whole lane blocks per worker, as even as possible
         bounds = [min(k, W * (blocks * i // min(self.workers, blocks))) for i in range(min(self.workers, blocks) + 1)]
         groups = [sets[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
-        workspaces = [self._workspace(W, -(-len(g) // W), i) for i, g in enumerate(groups)]
-        self._workspaces = {key: ws for key, ws in self._workspaces.items()
-                            if any(ws is w for w in workspaces)}  # memory scales with the batch: keep these only
-        if len(groups) == 1:
-            parts = [self._admm(groups[0], workspaces[0], verbose)]
-        else:
-            self._load_modules(W)  # compile or load once, before the threads launch kernels
-            with concurrent.futures.ThreadPoolExecutor(len(groups)) as pool:
-                parts = list(pool.map(lambda gw: self._admm(*gw, verbose), zip(groups, workspaces)))
+        workspace = self._workspace(W, -(-len(groups[0]) // W))
+        with interrupt.catch_interrupt():
+            if len(groups) == 1:
+                parts = [self._admm(groups[0], workspace, verbose)]
+            else:
+                pool = self._worker_pool(len(groups) - 1)
+                settings = dataclasses.asdict(tolerances)
+                pool.start("solve", [(g, W, settings) for g in groups[1:]])
+                try:
+                    parts = [self._admm(groups[0], workspace, verbose)]
+                finally:
+                    parts += pool.finish()
         res = DistanceResult(
             {key: np.concatenate([p[key] for p in parts], axis=-1)
              for key in ("distance", "iterations", "converged", "primal_residual", "dual_residual")},
-            cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0)
+            cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
+            interrupted=any(p.interrupted for p in parts))
         gradient = self._max_gradient(res.distance)
         steep = ~(gradient <= tolerances.max_gradient)  # also NaN
         res.converged &= ~steep
         if steep.any():
             warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
                           f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
-                          "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=2)
-        if not res.converged.all() and (~res.converged & ~steep).any():
+                          "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
+        if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
-                          stacklevel=2)
+                          stacklevel=3)
         return res
 
     def _max_gradient(self, distance):
@@ -240,17 +243,31 @@ class DistanceSolver:
             return np.sqrt(np.square(g).sum(axis=1)).max(axis=0, initial=0.0)
 
     # ------------------------------------------------------------------ ADMM
-    def _load_modules(self, W):
-        """Load the kernel modules of lane width W on the solver's device (not thread-safe)."""
-        k = self.mesh.elements.shape[1]
-        for kernels in (admm_kernels(self.scalar, W, k), lane_kernels(self.scalar, W),
-                        pcg_kernels(self.scalar, W), multigrid_kernels(self.scalar, W)):
-            module = next(v for v in vars(kernels).values() if isinstance(v, wp.Kernel)).module
-            wp.load_module(module, device=self.device)
+    def _worker_pool(self, count):
+        """At least ``count`` worker processes, each holding a copy of this solver (kept until :meth:`close`)."""
+        if self._pool is None or len(self._pool) < count:
+            self.close()
+            self._pool = WorkerPool(_SolverCopy, (self._copy_arguments,), count, first_index=1)
+        return self._pool
 
-    def _workspace(self, W, nb, worker=0):
-        key = (W, nb, worker)
+    def close(self):
+        """End the worker processes of :meth:`solve_many` (also done when the solver is garbage collected)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _workspace(self, W, nb):
+        """The arrays of a batch of nb blocks of W lanes (only the latest batch shape is kept:
+        the memory scales with the batch)."""
+        key = (W, nb)
         if key not in self._workspaces:
+            self._workspaces = {}
             V = lane_type(self.scalar, W)
             n, m, dev = self.mesh.n_vertices, self.mesh.n_elements, self.device
             ws = dict(
@@ -339,7 +356,7 @@ class DistanceSolver:
                     print(f"  ADMM iteration {it}: {np.count_nonzero(iterations >= 0)}/{k} converged, "
                           f"max r/eps_pri {_max_ratio(r, eps_pri):.3g}, max s/eps_dual {_max_ratio(s, eps_dual):.3g}, "
                           f"{last_print - t0:.1f} s", file=sys.stderr)
-                if np.all(iterations >= 0) or it == tol.max_iterations:
+                if np.all(iterations >= 0) or it == tol.max_iterations or interrupt.requested():
                     break
                 if new.size:
                     per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
@@ -373,7 +390,20 @@ class DistanceSolver:
         converged = iterations >= 0
         return DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
-            primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0)
+            primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0,
+            interrupted=bool(not converged.all() and it < tol.max_iterations and interrupt.requested()))
+
+
+class _SolverCopy:
+    """A worker process's copy of a :class:`DistanceSolver` (one process, one batch at a time)."""
+
+    def __init__(self, arguments, index):
+        self.solver = DistanceSolver(device="cpu", workers=1, **arguments)
+
+    def solve(self, sets, W, settings):
+        """The batched ADMM of ``sets`` at lane width W under the caller's ``tolerances`` settings."""
+        with tolerances.override(**settings):
+            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False)
 
 
 def _max_ratio(a, b):

@@ -1,0 +1,253 @@
+"""CPU worker processes and the memory they share.
+
+A Warp launch on the CPU runs on one core, and Warp does not support CPU launches from
+several Python threads of one process (generated CPU code keeps process-global state: the
+tile-storage pointer that every launch sets and restores; two threads interleaving it
+crashed ``all_pairs`` under load). So the solvers use more cores through processes:
+
+- :class:`WorkerPool` starts ``count`` fresh Python processes (``python -c``, so a user's
+  script is never re-imported, whatever its ``__main__`` guard), each of which builds one
+  object ``factory(*args, index)`` and then runs the method calls the parent sends it over a
+  pipe. The workers live in their own session: a Ctrl-C in the terminal reaches the parent
+  only, which decides what it means (see :mod:`warp_regdist.interrupt`) and raises the
+  workers' shared stop flag.
+- :class:`SharedArrays` lays named numpy arrays out in one anonymous shared mapping
+  (``memfd``; not limited by the size of /dev/shm) that the workers map too; :meth:`warp`
+  views an array as a ``wp.array`` on the CPU device without copying.
+
+Linux only (``os.memfd_create``, fd passing); elsewhere :func:`processes_available` is
+False and the solvers use one process.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import pickle
+import subprocess
+import sys
+import weakref
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+from . import interrupt
+
+__all__ = ["WorkerPool", "SharedArrays", "processes_available", "WorkerError"]
+
+_ALIGN = 64
+
+
+class WorkerError(RuntimeError):
+    """A worker process raised (the message holds its traceback) or died."""
+
+
+def processes_available():
+    """Whether worker processes with shared memory work on this platform."""
+    return sys.platform.startswith("linux") and hasattr(os, "memfd_create")
+
+
+class SharedArrays:
+    """Named numpy arrays in one shared anonymous mapping, zero-initialized.
+
+    Parameters
+    ----------
+    specs : dict name -> (shape, numpy dtype)
+
+    The object pickles to a handle that attaches to the same memory, but only into a
+    :class:`WorkerPool` worker, which receives the mapping's file descriptor at start.
+    """
+
+    def __init__(self, specs, fd=None):
+        self.layout = {}
+        offset = 0
+        for name, (shape, dtype) in specs.items():
+            shape = tuple(int(s) for s in shape)
+            dtype = np.dtype(dtype)
+            self.layout[name] = (offset, shape, dtype.str)
+            offset += -(-int(np.prod(shape)) * dtype.itemsize // _ALIGN) * _ALIGN
+        self.size = max(offset, _ALIGN)
+        if fd is None:
+            fd = os.memfd_create("warp_regdist_shared")
+            os.ftruncate(fd, self.size)
+            self._owner = weakref.finalize(self, os.close, fd)
+        self.fd = fd
+        self._map = mmap.mmap(fd, self.size)
+        self.arrays = {name: np.ndarray(shape, dtype=np.dtype(dt), buffer=self._map, offset=off)
+                       for name, (off, shape, dt) in self.layout.items()}
+
+    def __getitem__(self, name):
+        return self.arrays[name]
+
+    def warp(self, name, dtype, shape=None):
+        """The array ``name`` as a ``wp.array`` of ``dtype`` on the CPU (no copy; ``shape`` in
+        elements of ``dtype``, default: the numpy shape without the trailing lane axis)."""
+        import warp as wp
+
+        a = self.arrays[name]
+        if shape is None:
+            shape = a.shape[:-1] if wp.types.type_size_in_bytes(dtype) > a.itemsize else a.shape
+        return wp.array(ptr=a.ctypes.data, shape=tuple(shape), dtype=dtype, device="cpu")
+
+    def __reduce__(self):
+        specs = {name: (shape, dt) for name, (_, shape, dt) in self.layout.items()}
+        return (_attach, (specs, self.fd))
+
+
+def _attach(specs, fd):
+    """SharedArrays on an inherited descriptor (the worker received it under the same number)."""
+    return SharedArrays(specs, fd=fd)
+
+
+_WORKER = """
+import sys
+import warp
+warp.config.quiet = True
+from warp_regdist.processes import _serve
+_serve(int(sys.argv[1]), int(sys.argv[2]))
+"""
+
+
+class WorkerPool:
+    """``count`` worker processes, worker i holding ``factory(*args, i + first_index)``.
+
+    Parameters
+    ----------
+    factory : picklable callable (a class or function importable by module path)
+    args : tuple, picklable (may contain :class:`SharedArrays`)
+    count : int
+    first_index : int
+        Index passed to the first worker's factory (the parent often does part 0 itself).
+    shared : list of SharedArrays
+        Mappings whose descriptors the workers inherit.
+
+    Use :meth:`start` then :meth:`finish` to overlap the workers' calls with the parent's
+    own share of the work; :meth:`close` (also at garbage collection) ends them.
+    """
+
+    def __init__(self, factory, args, count, first_index=0, shared=()):
+        self.stop_flag = SharedArrays({"stop": ((1,), np.uint8)})
+        fds = [s.fd for s in shared] + [self.stop_flag.fd]
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        self._procs, self._conns = [], []
+        try:
+            for i in range(count):
+                down_r, down_w = os.pipe()
+                up_r, up_w = os.pipe()
+                proc = subprocess.Popen([sys.executable, "-c", _WORKER, str(down_r), str(up_w)],
+                                        pass_fds=(down_r, up_w, *fds), env=env, stdin=subprocess.DEVNULL,
+                                        start_new_session=True)
+                os.close(down_r)
+                os.close(up_w)
+                conn = _Channel(up_r, down_w)
+                self._procs.append(proc)
+                self._conns.append(conn)
+                conn.send((factory, args, i + first_index, self.stop_flag))
+            for i in range(count):
+                self._receive(i)  # the factory's result: ready, or its error
+        except BaseException:
+            self.close()
+            raise
+        self._finalizer = weakref.finalize(self, _shutdown, self._procs, self._conns)
+        interrupt.link(self)
+
+    def __len__(self):
+        return len(self._procs)
+
+    def start(self, method, calls):
+        """Send ``method(*calls[i])`` to worker i (no waiting)."""
+        for conn, args in zip(self._conns, calls):
+            conn.send((method, args))
+
+    def finish(self):
+        """The results of the calls sent by :meth:`start`, one per worker."""
+        return [self._receive(i) for i in range(len(self._conns))]
+
+    def call(self, method, calls):
+        self.start(method, calls)
+        return self.finish()
+
+    def request_stop(self, value=True):
+        """Raise (or clear) the stop flag that the workers' solvers poll once per iteration."""
+        self.stop_flag["stop"][0] = 1 if value else 0
+
+    def _receive(self, i):
+        try:
+            status, value = self._conns[i].recv()
+        except (EOFError, OSError):
+            code = self._procs[i].wait()
+            raise WorkerError(f"worker process {self._procs[i].pid} died (exit status {code})") from None
+        if status == "error":
+            raise WorkerError(f"worker process {self._procs[i].pid} failed:\n{value}")
+        return value
+
+    def close(self):
+        _shutdown(self._procs, self._conns)
+
+
+def _shutdown(procs, conns):
+    for conn in conns:
+        try:
+            conn.send(None)
+        except OSError:
+            pass
+        conn.close()
+    for proc in procs:
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    procs.clear()
+    conns.clear()
+
+
+class _Channel:
+    """A pickle channel over a pair of pipe descriptors (read from one, write to the other)."""
+
+    def __init__(self, read_fd, write_fd):
+        self._read = Connection(read_fd, readable=True, writable=False)
+        self._write = Connection(write_fd, readable=False, writable=True)
+
+    def send(self, obj):
+        self._write.send_bytes(pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def recv(self):
+        return pickle.loads(self._read.recv_bytes())
+
+    def close(self):
+        self._read.close()
+        self._write.close()
+
+
+def _serve(read_fd, write_fd):
+    """Worker main loop: build the object, then answer method calls until told to stop."""
+    import traceback
+
+    os.dup2(2, 1)  # the channel is a pipe of its own; anything printed goes to stderr
+    channel = _Channel(read_fd, write_fd)
+    try:
+        message = channel.recv()
+    except EOFError:
+        return
+    try:
+        factory, args, index, stop_flag = message
+        interrupt.use_flag(stop_flag["stop"])
+        obj = factory(*args, index)
+        channel.send(("ok", None))
+    except BaseException:
+        channel.send(("error", traceback.format_exc()))
+        return
+    while True:
+        try:
+            message = channel.recv()
+        except EOFError:
+            return
+        if message is None:
+            return
+        method, args = message
+        try:
+            channel.send(("ok", getattr(obj, method)(*args)))
+        except BaseException:
+            channel.send(("error", traceback.format_exc()))
