@@ -1,11 +1,10 @@
-"""Kernels of the multigrid V-cycle preconditioner  z = mask M_0 r  (warp_regdist/multigrid.py).
+"""Kernels of the multigrid V-cycle preconditioner  z = M_0 r  (warp_regdist/multigrid.py).
 
-Level l holds y_l (restricted residual) and z_l (its correction); y_0 = r, z_0 = z of
-the PCG. One application is  y_l+1 = R_l y_l  down the levels (mg_restrict),
+Level l holds y_l (restricted residual) and z_l (its correction); y_0 = r and z_0 = z
+are the caller's. One application is  y_l+1 = R_l y_l  down the levels (mg_restrict),
 z_L = A_L^+ y_L  with a dense matrix (mg_coarse), then  z_l = S_l y_l + R_l^T z_l+1  up
-the levels (mg_prolong), the finest one masked and adding r.z to the PCG's RZ
-accumulator (mg_prolong_fine). Every sparse product is a CSR row loop (the PCG's
-``matvec_row``), so the kernels are the same on CPU and CUDA.
+the levels (mg_prolong). Every sparse product is a CSR row loop (the PCG's
+``matvec_row`` over ``chunk_rows``), so the kernels are the same on CPU and CUDA.
 """
 
 import functools
@@ -14,7 +13,7 @@ import types
 import warp as wp
 
 from .lanes import lane_type
-from .pcg import RZ, pcg_kernels
+from .pcg import chunk_rows, pcg_kernels
 
 
 @functools.cache
@@ -29,7 +28,8 @@ def multigrid_kernels(scalar, W):
                     y: wp.array2d(dtype=V), yc: wp.array2d(dtype=V), chunk: int, n: int):
         """yc = R y (n rows of R)."""
         c, b = wp.tid()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             yc[i, b] = matvec_row(offsets, cols, vals, y, i, b)
 
     @wp.kernel(enable_backward=False, module=module)
@@ -37,7 +37,8 @@ def multigrid_kernels(scalar, W):
                   chunk: int, n: int):
         """z = A_L^+ y with the dense (n, n) pseudo-inverse."""
         c, b = wp.tid()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             s = V()
             j = int(0)
             while j < n:
@@ -52,24 +53,8 @@ def multigrid_kernels(scalar, W):
                    y: wp.array2d(dtype=V), zc: wp.array2d(dtype=V), z: wp.array2d(dtype=V), chunk: int, n: int):
         """z = S y + R^T zc  (R^T stored as the CSR p_*)."""
         c, b = wp.tid()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             z[i, b] = matvec_row(s_offsets, s_cols, s_vals, y, i, b) + matvec_row(p_offsets, p_cols, p_vals, zc, i, b)
 
-    @wp.kernel(enable_backward=False, module=module)
-    def mg_prolong_fine(s_offsets: wp.array(dtype=wp.int32), s_cols: wp.array(dtype=wp.int32),
-                        s_vals: wp.array(dtype=scalar), p_offsets: wp.array(dtype=wp.int32),
-                        p_cols: wp.array(dtype=wp.int32), p_vals: wp.array(dtype=scalar),
-                        mask: wp.array2d(dtype=V), r: wp.array2d(dtype=V), zc: wp.array2d(dtype=V),
-                        z: wp.array2d(dtype=V), acc: wp.array3d(dtype=V), slot: int, chunk: int, n: int):
-        """z = mask (S r + R^T zc); slot RZ += r.z."""
-        c, b = wp.tid()
-        rz = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
-            zi = wp.cw_mul(mask[i, b], matvec_row(s_offsets, s_cols, s_vals, r, i, b)
-                           + matvec_row(p_offsets, p_cols, p_vals, zc, i, b))
-            z[i, b] = zi
-            rz += wp.cw_mul(r[i, b], zi)
-        wp.atomic_add(acc, slot, RZ, b, rz)
-
-    return types.SimpleNamespace(mg_restrict=mg_restrict, mg_coarse=mg_coarse, mg_prolong=mg_prolong,
-                                 mg_prolong_fine=mg_prolong_fine)
+    return types.SimpleNamespace(mg_restrict=mg_restrict, mg_coarse=mg_coarse, mg_prolong=mg_prolong)

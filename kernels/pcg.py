@@ -2,14 +2,28 @@
 
 K is a symmetric CSR matrix with scalar values shared by all columns; ``mask`` (n, nb)
 is 1 on the free unknowns of each column and 0 on fixed ones (sources, unreachable
-vertices), where x, b and every iterate stay 0. Dot products are per lane and kept in a
-small accumulator array ``acc`` of shape (3, 4, nb): three rotating slots (iteration
-k uses slot k % 3, reads slot (k - 1) % 3 and clears slot (k + 1) % 3) with rows
-PQ, RZ, RR, BB, so that no launch is needed to reset them.
+vertices), where x, b, r and every iterate stay 0. The preconditioner z = M r is a separate
+operator (its own launches between those of the loop); the loop masks z in cg_direction.
 
-With ``jacobi`` = 1, cg_init and cg_update also apply the Jacobi preconditioner
-z = D^-1 r and add r.z to RZ (cg_init also sets p = z); with ``jacobi`` = 0 they leave z,
-p and RZ to a separate preconditioner (kernels/multigrid.py) followed by cg_direction.
+Everything the loop decides lives on the device, so a loop body is one fixed sequence
+of launches (replayable, capturable as a graph):
+
+- ``counters`` (2,) int32: ITERATION k (iterations done), MAX_ITERATIONS;
+  ``running`` (1,) int32: 1 while some lane has |r|^2 > tol2 and k < MAX_ITERATIONS.
+  Every loop kernel returns at once when ``running`` is 0, so extra bodies are no-ops.
+- ``acc`` (3, 3, nb): per-lane dot products in three rotating slots with rows PQ, RZ, RR;
+  after k iterations slot k % 3 holds the current r.r, slot (k - 1) % 3 the previous
+  r.z, and slot (k + 1) % 3 is cleared for the next iteration (no reset launch).
+- ``bb`` (nb,): |b|^2 per lane; ``converged`` (nb,): 1 on lanes with |r|^2 <= tol2,
+  tol2 = max(rtol2 |b|^2, atol2) per lane (``rtol2`` (1,), ``atol2`` (nb,)).
+
+One iteration from k: z = M r, cg_dot (RZ of slot k), cg_direction (p = mask z + beta p,
+beta = rz_k / rz_k-1), cg_matvec (q = mask K p, PQ of slot k + 1), cg_update
+(x += a p, r -= a q, a = rz_k / pq on lanes not converged, RR of slot k + 1), cg_check
+(k += 1, converged flags, running).
+
+Row loops: each thread of a (row chunks, nb) launch handles ``chunk`` consecutive rows
+(:func:`chunk_rows`) of one column block; :func:`row_dim` is that launch's dimension.
 """
 
 import functools
@@ -19,7 +33,19 @@ import warp as wp
 
 from .lanes import lane_type
 
-PQ, RZ, RR, BB = 0, 1, 2, 3
+PQ, RZ, RR = 0, 1, 2
+ITERATION, MAX_ITERATIONS = 0, 1
+
+
+def row_dim(n, chunk, blocks):
+    """Launch dimension (row chunks, blocks) of a row loop over n rows, ``chunk`` rows per thread."""
+    return ((n + chunk - 1) // chunk, blocks)
+
+
+@wp.func
+def chunk_rows(c: int, chunk: int, n: int):
+    """First and one-past-last row of chunk c."""
+    return c * chunk, wp.min(c * chunk + chunk, n)
 
 
 @functools.cache
@@ -28,10 +54,12 @@ def pcg_kernels(scalar, W):
     V = lane_type(scalar, W)
     module = wp.get_module(f"warp_regdist_pcg_{scalar.__name__}_{W}")
     zero = scalar(0.0)
+    one = scalar(1.0)
 
     @wp.func(module=module)
     def matvec_row(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32),
                    vals: wp.array(dtype=scalar), x: wp.array2d(dtype=V), i: int, b: int):
+        """(A x)_i of column block b for a CSR matrix A."""
         s = V()
         p = offsets[i]
         e = offsets[i + 1]
@@ -41,87 +69,151 @@ def pcg_kernels(scalar, W):
         return s
 
     @wp.kernel(enable_backward=False, module=module)
+    def cg_reset(acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), converged: wp.array(dtype=V),
+                 counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32)):
+        """Clear the accumulators of block b; the first thread sets k = 0 and running = 1."""
+        b = wp.tid()
+        for s in range(3):
+            acc[s, PQ, b] = V()
+            acc[s, RZ, b] = V()
+            acc[s, RR, b] = V()
+        bb[b] = V()
+        converged[b] = V()
+        if b == 0:
+            counters[ITERATION] = 0
+            running[0] = 1
+
+    @wp.kernel(enable_backward=False, module=module)
     def cg_init(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
-                dinv: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), rhs: wp.array2d(dtype=V),
-                x: wp.array2d(dtype=V), r: wp.array2d(dtype=V), z: wp.array2d(dtype=V), p: wp.array2d(dtype=V),
-                acc: wp.array3d(dtype=V), jacobi: int, chunk: int, n: int):
-        """r = b - mask K x; slot 0: RR, BB (= |b|^2); with jacobi: z = p = D^-1 r and RZ."""
+                mask: wp.array2d(dtype=V), rhs: wp.array2d(dtype=V), x: wp.array2d(dtype=V),
+                r: wp.array2d(dtype=V), acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), chunk: int, n: int):
+        """r = b - mask K x; slot 0 RR += r.r, bb += b.b."""
         c, b = wp.tid()
-        rz = V()
         rr = V()
-        bb = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
-            mk = mask[i, b]
-            ri = rhs[i, b] - wp.cw_mul(mk, matvec_row(offsets, cols, vals, x, i, b))
+        sb = V()
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            ri = rhs[i, b] - wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, x, i, b))
             r[i, b] = ri
-            if jacobi != 0:
-                zi = dinv[i] * ri
-                z[i, b] = zi
-                p[i, b] = zi
-                rz += wp.cw_mul(ri, zi)
             rr += wp.cw_mul(ri, ri)
-            bb += wp.cw_mul(rhs[i, b], rhs[i, b])
-        if jacobi != 0:
-            wp.atomic_add(acc, 0, RZ, b, rz)
+            sb += wp.cw_mul(rhs[i, b], rhs[i, b])
         wp.atomic_add(acc, 0, RR, b, rr)
-        wp.atomic_add(acc, 0, BB, b, bb)
+        wp.atomic_add(bb, b, sb)
 
     @wp.kernel(enable_backward=False, module=module)
-    def cg_matvec(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
-                  mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
-                  acc: wp.array3d(dtype=V), slot: int, chunk: int, n: int):
-        """q = mask K p; slot PQ += p.q."""
-        c, b = wp.tid()
-        pq = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
-            qi = wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, p, i, b))
-            q[i, b] = qi
-            pq += wp.cw_mul(p[i, b], qi)
-        wp.atomic_add(acc, slot, PQ, b, pq)
+    def cg_check(acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), rtol2: wp.array(dtype=scalar),
+                 atol2: wp.array(dtype=V), converged: wp.array(dtype=V), counters: wp.array(dtype=wp.int32),
+                 running: wp.array(dtype=wp.int32), advance: int, blocks: int):
+        """One thread: k += advance; converged = |r|^2 <= tol2 per lane (NaN is not); running."""
+        if running[0] == 0:
+            return
+        k = counters[ITERATION] + advance
+        counters[ITERATION] = k
+        s = k % 3
+        active = int(0)
+        for b in range(blocks):
+            flags = V()
+            for l in range(W):
+                if acc[s, RR, b][l] <= wp.max(rtol2[0] * bb[b][l], atol2[b][l]):
+                    flags[l] = one
+                else:
+                    active = 1
+            converged[b] = flags
+        if k >= counters[MAX_ITERATIONS]:
+            active = 0
+        running[0] = active
 
     @wp.kernel(enable_backward=False, module=module)
-    def cg_update(dinv: wp.array(dtype=scalar), x: wp.array2d(dtype=V), r: wp.array2d(dtype=V),
-                  z: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
-                  acc: wp.array3d(dtype=V), tol2: wp.array(dtype=V), slot: int, prev: int, jacobi: int,
-                  chunk: int, n: int):
-        """x += a p, r -= a q, a = rz_prev / pq per lane (0 where |r|^2 <= tol2); with jacobi: z = D^-1 r, RZ."""
+    def cg_dot(r: wp.array2d(dtype=V), z: wp.array2d(dtype=V), acc: wp.array3d(dtype=V),
+               counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, n: int):
+        """slot k RZ += r.z (= r.(mask z): r vanishes where mask is 0)."""
+        if running[0] == 0:
+            return
         c, b = wp.tid()
-        a = V()
-        for l in range(W):
-            pq = acc[slot, PQ, b][l]
-            if pq > zero and acc[prev, RR, b][l] > tol2[b][l]:
-                a[l] = acc[prev, RZ, b][l] / pq
         rz = V()
-        rr = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
-            x[i, b] = x[i, b] + wp.cw_mul(a, p[i, b])
-            ri = r[i, b] - wp.cw_mul(a, q[i, b])
-            r[i, b] = ri
-            if jacobi != 0:
-                zi = dinv[i] * ri
-                z[i, b] = zi
-                rz += wp.cw_mul(ri, zi)
-            rr += wp.cw_mul(ri, ri)
-        if jacobi != 0:
-            wp.atomic_add(acc, slot, RZ, b, rz)
-        wp.atomic_add(acc, slot, RR, b, rr)
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            rz += wp.cw_mul(r[i, b], z[i, b])
+        wp.atomic_add(acc, counters[ITERATION] % 3, RZ, b, rz)
 
     @wp.kernel(enable_backward=False, module=module)
-    def cg_direction(p: wp.array2d(dtype=V), z: wp.array2d(dtype=V), acc: wp.array3d(dtype=V),
-                     slot: int, prev: int, nxt: int, chunk: int, n: int):
-        """p = z + beta p with beta = rz / rz_prev per lane; the first thread clears slot nxt."""
+    def cg_direction(mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), z: wp.array2d(dtype=V),
+                     acc: wp.array3d(dtype=V),
+                     counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, n: int):
+        """p = mask z + beta p, beta = rz_k / rz_k-1 per lane (0 at k = 0); the first thread clears slot k + 1."""
+        if running[0] == 0:
+            return
         c, b = wp.tid()
+        k = counters[ITERATION]
+        s = k % 3
         beta = V()
         for l in range(W):
-            den = acc[prev, RZ, b][l]
+            den = acc[(k + 2) % 3, RZ, b][l]
             if den > zero:
-                beta[l] = acc[slot, RZ, b][l] / den
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
-            p[i, b] = z[i, b] + wp.cw_mul(beta, p[i, b])
+                beta[l] = acc[s, RZ, b][l] / den
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            zi = wp.cw_mul(mask[i, b], z[i, b])
+            if k == 0:
+                p[i, b] = zi
+            else:
+                p[i, b] = zi + wp.cw_mul(beta, p[i, b])
         if c == 0:
+            nxt = (k + 1) % 3
             acc[nxt, PQ, b] = V()
             acc[nxt, RZ, b] = V()
             acc[nxt, RR, b] = V()
 
-    return types.SimpleNamespace(cg_init=cg_init, cg_matvec=cg_matvec, cg_update=cg_update,
-                                 cg_direction=cg_direction, matvec_row=matvec_row, V=V)
+    @wp.kernel(enable_backward=False, module=module)
+    def cg_matvec(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
+                  mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
+                  acc: wp.array3d(dtype=V), counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32),
+                  chunk: int, n: int):
+        """q = mask K p; slot k + 1 PQ += p.q."""
+        if running[0] == 0:
+            return
+        c, b = wp.tid()
+        pq = V()
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            qi = wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, p, i, b))
+            q[i, b] = qi
+            pq += wp.cw_mul(p[i, b], qi)
+        wp.atomic_add(acc, (counters[ITERATION] + 1) % 3, PQ, b, pq)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def cg_update(x: wp.array2d(dtype=V), r: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
+                  acc: wp.array3d(dtype=V), converged: wp.array(dtype=V), counters: wp.array(dtype=wp.int32),
+                  running: wp.array(dtype=wp.int32), chunk: int, n: int):
+        """x += a p, r -= a q with a = rz_k / pq per lane (0 on converged lanes); slot k + 1 RR += r.r."""
+        if running[0] == 0:
+            return
+        c, b = wp.tid()
+        k = counters[ITERATION]
+        s = (k + 1) % 3
+        a = V()
+        for l in range(W):
+            pq = acc[s, PQ, b][l]
+            if pq > zero and converged[b][l] == zero:
+                a[l] = acc[k % 3, RZ, b][l] / pq
+        rr = V()
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            x[i, b] = x[i, b] + wp.cw_mul(a, p[i, b])
+            ri = r[i, b] - wp.cw_mul(a, q[i, b])
+            r[i, b] = ri
+            rr += wp.cw_mul(ri, ri)
+        wp.atomic_add(acc, s, RR, b, rr)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def jacobi_apply(dinv: wp.array(dtype=scalar), r: wp.array2d(dtype=V), z: wp.array2d(dtype=V),
+                     chunk: int, n: int):
+        """z = D^-1 r."""
+        c, b = wp.tid()
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            z[i, b] = dinv[i] * r[i, b]
+
+    return types.SimpleNamespace(cg_reset=cg_reset, cg_init=cg_init, cg_check=cg_check, cg_dot=cg_dot,
+                                 cg_direction=cg_direction, cg_matvec=cg_matvec, cg_update=cg_update,
+                                 jacobi_apply=jacobi_apply, matvec_row=matvec_row, V=V)

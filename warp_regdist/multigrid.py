@@ -1,4 +1,5 @@
-"""Smoothed-aggregation algebraic multigrid hierarchy (host-side setup, scipy).
+"""Smoothed-aggregation algebraic multigrid: the hierarchy (host-side setup, scipy) and its
+V-cycle as a PCG preconditioner on a Warp device (:class:`MultigridPreconditioner`).
 
 The preconditioner of the u-step is one symmetric V-cycle for the stiffness matrix
 A_0 = W_D, built once per matrix. Level l has the Galerkin operator A_l, its diagonal
@@ -36,8 +37,14 @@ import dataclasses
 
 import numpy as np
 import scipy.sparse as sp
+import warp as wp
 
-__all__ = ["Hierarchy", "smoothed_aggregation"]
+from .kernels.lanes import chunk_size, lane_type
+from .kernels.multigrid import multigrid_kernels
+from .kernels.pcg import row_dim
+from .pcg import csr_arrays
+
+__all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,3 +222,64 @@ def smoothed_aggregation(matrix, theta=0.5, coarse_size=256, max_levels=20, seed
         M.eliminate_zeros()
         M.sort_indices()
     return Hierarchy(smoothers, restrictions, _pseudo_inverse(A))
+
+
+class MultigridPreconditioner:
+    """z = M_0 r with a :class:`Hierarchy`'s V-cycle on a Warp device, a preconditioner of
+    :class:`~warp_regdist.pcg.BatchedPCG` for (n, nb) lane-vector columns.
+
+    Each PCG needs its own (it holds the coarse levels' (n_l, nb) vectors); one Hierarchy
+    can serve many. A one-level hierarchy (n <= coarse size) applies its dense
+    pseudo-inverse as S_0 with no coarse correction (an empty R_0^T).
+
+    Parameters
+    ----------
+    hierarchy : Hierarchy
+    scalar : warp scalar type
+    width : int
+        Lanes per vector.
+    blocks : int
+        Column blocks nb.
+    device : warp device
+    """
+
+    def __init__(self, hierarchy, scalar, width, blocks, device):
+        self.kernels = multigrid_kernels(scalar, width)
+        V = lane_type(scalar, width)
+        self.device = device
+        self.chunk = chunk_size(device)
+        self.sizes = hierarchy.sizes
+        self.n = self.sizes[0]
+        if hierarchy.smoothers:
+            smoothers, restrictions = hierarchy.smoothers, hierarchy.restrictions
+            self.inverse = wp.array(hierarchy.coarse_inverse, dtype=scalar, device=device)
+        else:
+            smoothers, restrictions = [hierarchy.coarse_inverse], []
+            self.sizes = [self.n]
+        self.smoothers = [csr_arrays(S, scalar, device) for S in smoothers]
+        self.restrictions = [csr_arrays(R, scalar, device) for R in restrictions]
+        self.prolongations = ([csr_arrays(R.T, scalar, device) for R in restrictions]
+                              or [csr_arrays(sp.csr_matrix((self.n, 1)), scalar, device)])
+        self.y = [wp.zeros((m, blocks), dtype=V, device=device) for m in self.sizes[1:]]
+        self.z = [wp.zeros((m, blocks), dtype=V, device=device) for m in self.sizes[1:]]
+
+    def record(self, r, z, blocks):
+        """Recorded launches computing z = M_0 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
+        k, chunk, dev, sizes = self.kernels, self.chunk, self.device, self.sizes
+        ys, zs = [r] + self.y, [z] + self.z
+        levels = len(sizes)
+
+        def rec(kernel, level, *inputs):
+            return wp.launch(kernel, row_dim(sizes[level], chunk, blocks), device=dev, record_cmd=True,
+                             inputs=[*inputs, chunk, sizes[level]])
+
+        launches = [rec(k.mg_restrict, l + 1, *R, ys[l], ys[l + 1]) for l, R in enumerate(self.restrictions)]
+        if levels > 1:
+            launches.append(rec(k.mg_coarse, levels - 1, self.inverse, ys[-1], zs[-1]))
+        for l in range(max(levels - 2, 0), -1, -1):
+            launches.append(rec(k.mg_prolong, l, *self.smoothers[l], *self.prolongations[l], ys[l],
+                                zs[l + 1] if levels > 1 else r, zs[l]))
+        return launches
+
+    def set_matrix(self, matrix):
+        """Keep the hierarchy when the PCG's matrix changes (it only needs to stay spectrally close)."""

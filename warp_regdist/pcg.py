@@ -5,11 +5,18 @@ Solves  mask K mask x = b  for every column at once, where K is one symmetric po
 free unknowns (K restricted to them is positive definite). Warm starts come for free:
 ``x`` holds the initial guess on entry.
 
-Preconditioners: "multigrid" (default), one smoothed-aggregation V-cycle
-z = mask M_0 r (warp_regdist/multigrid.py), which reads about 2.7 nnz(K) matrix entries
-on the finest level, so an iteration costs 2-3 Jacobi iterations, but 18, 21 and 33
-iterations reach 1e-6 on 5k, 100k and 1M vertices; "jacobi", z = D^-1 r, needs 250, 800
-and 3000 there (iterations grow like sqrt(n)).
+The preconditioner is an operator z = M r with its own launches (the PCG masks z):
+:class:`~warp_regdist.multigrid.MultigridPreconditioner` (default), one smoothed-aggregation
+V-cycle, which reads about 2.7 nnz(K) matrix entries on the finest level, so an iteration
+costs 2-3 Jacobi iterations, but 18, 21 and 33 iterations reach 1e-6 on 5k, 100k and 1M
+vertices; :class:`JacobiPreconditioner`, z = D^-1 r, needs 250, 800 and 3000 there
+(iterations grow like sqrt(n)).
+
+The stopping test runs on the device (kernels/pcg.py): per-lane converged flags, the
+iteration counter and a ``running`` flag, so one CG iteration is a fixed sequence of
+recorded launches. The host reads ``running`` every ``check_every`` iterations, or
+never: with ``capture=True`` the whole solve is one Warp graph whose loop is a
+``wp.capture_while`` on ``running`` (a CPU graph replay, or unchanged a CUDA graph).
 """
 
 from __future__ import annotations
@@ -18,16 +25,14 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .kernels.lanes import chunk_size, lane_type
-from .kernels.multigrid import multigrid_kernels
-from .kernels.pcg import BB, RR, pcg_kernels
-from .multigrid import Hierarchy, smoothed_aggregation
+from .kernels.lanes import chunk_size
+from .kernels.pcg import ITERATION, MAX_ITERATIONS, RR, pcg_kernels, row_dim
 
-__all__ = ["BatchedPCG"]
+__all__ = ["BatchedPCG", "JacobiPreconditioner", "csr_arrays"]
 
 
-def _csr_arrays(matrix, scalar, device):
-    """(offsets, columns, values) Warp arrays of a scipy sparse matrix."""
+def csr_arrays(matrix, scalar, device):
+    """(offsets, columns, values) Warp arrays of a scipy sparse matrix, column indices sorted."""
     M = sp.csr_matrix(matrix)
     M.sort_indices()
     return (wp.array(M.indptr.astype(np.int32), dtype=wp.int32, device=device),
@@ -35,83 +40,51 @@ def _csr_arrays(matrix, scalar, device):
             wp.array(M.data, dtype=scalar, device=device))
 
 
-class _VCycle:
-    """A :class:`~warp_regdist.multigrid.Hierarchy` on a Warp device: z = mask M_0 r, RZ += r.z.
+def _write(array, values):
+    """array[...] = values (NumPy-shaped: vector lanes last); through the zero-copy view on the CPU."""
+    values = np.reshape(values, array.shape + getattr(array.dtype, "_shape_", ()))
+    if array.device.is_cpu:
+        array.numpy()[...] = values
+    else:
+        array.assign(values)
 
-    A one-level hierarchy (n <= coarse size) applies its dense pseudo-inverse as S_0 with
-    no coarse correction (an empty R_0^T). The launches are recorded once per mask array
-    (a recorded CPU launch costs ~5 us instead of 20-80 us) and replayed, only the
-    accumulator slot changing.
+
+def _inverse_diagonal(K):
+    diag = K.diagonal()
+    return np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
+
+
+class JacobiPreconditioner:
+    """z = D^-1 r, D the diagonal of the PCG's matrix (0 where it is not positive).
+
+    Parameters
+    ----------
+    matrix : (n, n) scipy.sparse matrix
+    scalar : warp scalar type
+    width : int
+        Lanes per vector.
+    device : warp device
     """
 
-    def __init__(self, hierarchy, scalar, width, blocks, device):
-        self.kernels = multigrid_kernels(scalar, width)
-        V = lane_type(scalar, width)
+    def __init__(self, matrix, scalar, width, device):
+        self.n = matrix.shape[0]
+        self.kernel = pcg_kernels(scalar, width).jacobi_apply
         self.device = device
         self.chunk = chunk_size(device)
-        self.sizes = hierarchy.sizes
-        n = self.sizes[0]
-        if hierarchy.smoothers:
-            smoothers, restrictions = hierarchy.smoothers, hierarchy.restrictions
-            self.inverse = wp.array(hierarchy.coarse_inverse, dtype=scalar, device=device)
-        else:
-            smoothers, restrictions = [hierarchy.coarse_inverse], []
-            self.sizes = [n]
-        self.smoothers = [_csr_arrays(S, scalar, device) for S in smoothers]
-        self.restrictions = [_csr_arrays(R, scalar, device) for R in restrictions]
-        self.prolongations = ([_csr_arrays(R.T, scalar, device) for R in restrictions]
-                              or [_csr_arrays(sp.csr_matrix((n, 1)), scalar, device)])
-        self.y = [wp.zeros((m, blocks), dtype=V, device=device) for m in self.sizes[1:]]
-        self.z = [wp.zeros((m, blocks), dtype=V, device=device) for m in self.sizes[1:]]
-        self.blocks = blocks
-        self.mask = None
-        self.launches = []
+        self.dinv = wp.array(_inverse_diagonal(matrix), dtype=scalar, device=device)
 
-    def _dim(self, level):
-        return ((self.sizes[level] + self.chunk - 1) // self.chunk, self.blocks)
+    def record(self, r, z, blocks):
+        """Recorded launches computing z = D^-1 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
+        return [wp.launch(self.kernel, row_dim(self.n, self.chunk, blocks), device=self.device, record_cmd=True,
+                          inputs=[self.dinv, r, z, self.chunk, self.n])]
 
-    def _record(self, mask, r, z, acc):
-        """The launches of one application, finest (with the ``slot`` argument) last."""
-        k, chunk, dev = self.kernels, self.chunk, self.device
-        ys, zs = [r] + self.y, [z] + self.z
-        levels = len(self.sizes)
-        launches = []
-        for l, R in enumerate(self.restrictions):
-            launches.append(wp.launch(k.mg_restrict, self._dim(l + 1), device=dev, record_cmd=True,
-                                      inputs=[*R, ys[l], ys[l + 1], chunk, self.sizes[l + 1]]))
-        if levels > 1:
-            launches.append(wp.launch(k.mg_coarse, self._dim(levels - 1), device=dev, record_cmd=True,
-                                      inputs=[self.inverse, ys[-1], zs[-1], chunk, self.sizes[-1]]))
-        for l in range(levels - 2, 0, -1):
-            launches.append(wp.launch(k.mg_prolong, self._dim(l), device=dev, record_cmd=True,
-                                      inputs=[*self.smoothers[l], *self.prolongations[l], ys[l], zs[l + 1], zs[l],
-                                              chunk, self.sizes[l]]))
-        zc = zs[1] if levels > 1 else r
-        launches.append(wp.launch(k.mg_prolong_fine, self._dim(0), device=dev, record_cmd=True,
-                                  inputs=[*self.smoothers[0], *self.prolongations[0], mask, r, zc, z, acc, 0, chunk,
-                                          self.sizes[0]]))
-        return launches
-
-    def set_active_blocks(self, blocks):
-        """Apply to column blocks 0..blocks-1 only (launches are recorded again)."""
-        self.blocks = blocks
-        self.mask = None
-
-    def apply(self, mask, r, z, acc, slot):
-        """z = mask M_0 r for (n, nb) lane vectors r (zero where mask is 0); acc[slot, RZ] += r.z.
-
-        ``r``, ``z`` and ``acc`` must be the same arrays at every call (the PCG's own).
-        """
-        if mask is not self.mask:
-            self.launches = self._record(mask, r, z, acc)
-            self.mask = mask
-        self.launches[-1].set_param_by_name("slot", slot)
-        for launch in self.launches:
-            launch.launch()
+    def set_matrix(self, matrix):
+        """Follow a change of the PCG's matrix (in place: recorded launches stay valid)."""
+        self.dinv.assign(_inverse_diagonal(matrix))
 
 
 class BatchedPCG:
-    """Preconditioned CG for (n, nb) lane-vector columns.
+    """Preconditioned CG for (n, nb) lane-vector columns, stopping decided on the device.
 
     Parameters
     ----------
@@ -123,49 +96,87 @@ class BatchedPCG:
     blocks : int
         Number of column blocks nb.
     device : warp device
-    preconditioner : {"multigrid", "jacobi"} or Hierarchy
+    preconditioner : "multigrid", "jacobi", Hierarchy or operator
         "multigrid" builds :func:`~warp_regdist.multigrid.smoothed_aggregation` of the
-        matrix; pass a prebuilt Hierarchy to share one setup among several solvers.
+        matrix; a prebuilt Hierarchy shares one setup among several solvers. An operator
+        is any object with ``n``, ``record(r, z, blocks)`` (recorded launches computing
+        z = M r on blocks 0..blocks-1 of this solver's (n, nb) arrays ``r``, ``z``; M
+        symmetric positive definite on the free rows) and ``set_matrix(matrix)``, e.g.
+        :class:`JacobiPreconditioner` or
+        :class:`~warp_regdist.multigrid.MultigridPreconditioner`, built for this solver alone.
+    check_every : int
+        Without capture, the host reads the device's ``running`` flag every
+        ``check_every`` iterations (iterations after convergence are no-ops, but each
+        still applies the preconditioner).
+    capture : bool
+        Run every solve as one Warp graph (captured at the first solve with new arrays or
+        new active blocks, then replayed), the CG loop a ``wp.capture_while``. Capture is
+        process-global in Warp 1.19 on the CPU (every CPU launch from any thread is
+        recorded into the graph meanwhile), so use it only when no other thread launches;
+        on CUDA it needs conditional graph nodes (CUDA 12.4+).
+
+    Thread safety: kernels are loaded and launches recorded (graphs captured) only at the
+    first solve with new arrays and after :meth:`set_active_blocks`; later solves with the
+    same arrays only replay them, so several solvers can run in several threads once each
+    has made its first solve.
     """
 
-    def __init__(self, matrix, scalar, width, blocks, device, preconditioner="multigrid"):
-        K = matrix.tocsr()
+    def __init__(self, matrix, scalar, width, blocks, device, preconditioner="multigrid", check_every=1,
+                 capture=False):
+        K = sp.csr_matrix(matrix)
         K.sort_indices()
+        if not (isinstance(check_every, (int, np.integer)) and check_every >= 1):
+            raise ValueError(f"expected check_every a positive integer, got {check_every!r}")
         self.n = K.shape[0]
         self.device = wp.get_device(device)
         self.kernels = pcg_kernels(scalar, width)
         V = self.kernels.V
+        self.scalar = scalar
         self.width = width
-        self.offsets, self.columns, self.values = _csr_arrays(K, scalar, device)
+        self.check_every = int(check_every)
+        self.capture = bool(capture)
+        self.offsets, self.columns, self.values = csr_arrays(K, scalar, device)
         self._pattern = (K.indptr.copy(), K.indices.copy())
-        self.dinv = wp.array(self._inverse_diagonal(K), dtype=scalar, device=device)
         shape = (self.n, blocks)
         self.r, self.z, self.p, self.q = (wp.zeros(shape, dtype=V, device=device) for _ in range(4))
-        self.acc = wp.zeros((3, 4, blocks), dtype=V, device=device)
-        self.tol2 = wp.zeros(blocks, dtype=V, device=device)
-        self._tol2_host = np.zeros(blocks * width)
+        self.acc = wp.zeros((3, 3, blocks), dtype=V, device=device)
+        self.bb, self.converged, self.atol2 = (wp.zeros(blocks, dtype=V, device=device) for _ in range(3))
+        self.rtol2 = wp.zeros(1, dtype=scalar, device=device)
+        self.counters = wp.zeros(2, dtype=wp.int32, device=device)
+        self.running = wp.zeros(1, dtype=wp.int32, device=device)
+        self._atol2_host = np.zeros((blocks, width))
         self.chunk = chunk_size(device)
         self.blocks = blocks
-        self.dim = ((self.n + self.chunk - 1) // self.chunk, blocks)
-        self.scalar = scalar
-        self._recorded = {}
-        if isinstance(preconditioner, str) and preconditioner == "multigrid":
-            preconditioner = smoothed_aggregation(K)
-        if isinstance(preconditioner, Hierarchy):
-            if preconditioner.sizes[0] != self.n:
-                raise ValueError(f"expected a multigrid hierarchy for {self.n} unknowns, got {preconditioner.sizes[0]}")
-            self.vcycle = _VCycle(preconditioner, scalar, width, blocks, self.device)
-        elif isinstance(preconditioner, str) and preconditioner == "jacobi":
-            self.vcycle = None
-        else:
-            raise ValueError(f"expected preconditioner 'multigrid', 'jacobi' or a Hierarchy, got {preconditioner!r}")
+        self._program = None
+        self.preconditioner = self._operator(preconditioner, K, scalar, width, blocks)
+
+    def _operator(self, spec, K, scalar, width, blocks):
+        """The preconditioner operator for a ``preconditioner`` argument."""
+        from .multigrid import Hierarchy, MultigridPreconditioner, smoothed_aggregation  # multigrid imports pcg
+
+        if isinstance(spec, str) and spec == "multigrid":
+            spec = smoothed_aggregation(K)
+        if isinstance(spec, Hierarchy):
+            if spec.sizes[0] != self.n:
+                raise ValueError(f"expected a multigrid hierarchy for {self.n} unknowns, got {spec.sizes[0]}")
+            return MultigridPreconditioner(spec, scalar, width, blocks, self.device)
+        if isinstance(spec, str) and spec == "jacobi":
+            return JacobiPreconditioner(K, scalar, width, self.device)
+        if not isinstance(spec, str) and callable(getattr(spec, "record", None)) \
+                and callable(getattr(spec, "set_matrix", None)):
+            if getattr(spec, "n", None) != self.n:
+                raise ValueError(f"expected a preconditioner for {self.n} unknowns, got {getattr(spec, 'n', None)}")
+            return spec
+        raise ValueError(f"expected preconditioner 'multigrid', 'jacobi', a Hierarchy or an operator with "
+                         f"n, record and set_matrix, got {spec!r}")
 
     def set_matrix(self, matrix):
         """Replace K by ``matrix`` of the same sparsity pattern (a new penalty, a new shift).
 
-        The arrays are updated in place, so recorded launches stay valid; the
-        preconditioner is kept (it only needs to stay spectrally close to K: build a new
-        solver with ``smoothed_aggregation(matrix)`` when K changes by more than a scaling).
+        The arrays are updated in place, so recorded launches and graphs stay valid; the
+        preconditioner's ``set_matrix`` follows (the multigrid hierarchy is kept: it only
+        needs to stay spectrally close to K; build a new solver with
+        ``smoothed_aggregation(matrix)`` when K changes by more than a scaling).
         """
         K = sp.csr_matrix(matrix)
         K.sort_indices()
@@ -173,49 +184,57 @@ class BatchedPCG:
                                                 and np.array_equal(K.indices, self._pattern[1])):
             raise ValueError(f"expected a ({self.n}, {self.n}) matrix with the solver's sparsity pattern, "
                              f"got shape {K.shape} with {K.nnz} nonzeros")
-        self.values.assign(K.data.astype(self.values.numpy().dtype, copy=False))
-        self.dinv.assign(self._inverse_diagonal(K))
-
-    @staticmethod
-    def _inverse_diagonal(K):
-        diag = K.diagonal()
-        return np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)
+        self.values.assign(K.data.astype(wp.dtype_to_numpy(self.scalar), copy=False))
+        self.preconditioner.set_matrix(K)
 
     def set_active_blocks(self, blocks):
         """Solve only column blocks 0..blocks-1 from now on (a batch whose other columns are done)."""
-        if not 1 <= blocks <= self.tol2.shape[0]:
-            raise ValueError(f"expected 1 <= active blocks <= {self.tol2.shape[0]}, got {blocks}")
-        self.blocks = blocks
-        self.dim = (self.dim[0], blocks)
-        self._recorded = {}
-        if self.vcycle is not None:
-            self.vcycle.set_active_blocks(blocks)
+        if not 1 <= blocks <= self.acc.shape[2]:
+            raise ValueError(f"expected 1 <= active blocks <= {self.acc.shape[2]}, got {blocks}")
+        if blocks != self.blocks:
+            self.blocks = blocks
+            self._program = None
 
-    def _commands(self, rhs, x, mask):
-        """Recorded launches (init, matvec[slot], update[slot], direction[slot]) for these arrays."""
-        key = (rhs.ptr, x.ptr, mask.ptr)
-        if key not in self._recorded:
-            k, chunk, n, dev = self.kernels, self.chunk, self.n, self.device
-            jacobi = int(self.vcycle is None)
+    def _launches(self, rhs, x, mask):
+        """(start, body, graph) for these arrays: start = reset, init, check; body = one CG iteration."""
+        key = tuple((a.ptr, a.shape, a.strides) for a in (rhs, x, mask))
+        if self._program is None or self._program[0] != key:
+            k, chunk, n, dev, blocks = self.kernels, self.chunk, self.n, self.device, self.blocks
+            state = (self.counters, self.running)
+            dim = row_dim(n, chunk, blocks)
 
-            def rec(kernel, *args):
-                return wp.launch(kernel, self.dim, inputs=list(args), device=dev, record_cmd=True)
+            def rec(kernel, dim, *args):
+                return wp.launch(kernel, dim, inputs=list(args), device=dev, record_cmd=True)
 
-            init = rec(k.cg_init, self.offsets, self.columns, self.values, self.dinv, mask, rhs, x,
-                       self.r, self.z, self.p, self.acc, jacobi, chunk, n)
-            matvec, update, direction = [], [], []
-            for slot in range(3):
-                prev, nxt = (slot - 1) % 3, (slot + 1) % 3
-                matvec.append(rec(k.cg_matvec, self.offsets, self.columns, self.values, mask, self.p, self.q,
-                                  self.acc, slot, chunk, n))
-                update.append(rec(k.cg_update, self.dinv, x, self.r, self.z, self.p, self.q, self.acc,
-                                  self.tol2, slot, prev, jacobi, chunk, n))
-                direction.append(rec(k.cg_direction, self.p, self.z, self.acc, slot, prev, nxt, chunk, n))
-            self._recorded = {key: (init, matvec, update, direction)}
-        return self._recorded[key]
+            check = [self.acc, self.bb, self.rtol2, self.atol2, self.converged, *state]
+            start = [rec(k.cg_reset, blocks, self.acc, self.bb, self.converged, *state),
+                     rec(k.cg_init, dim, self.offsets, self.columns, self.values, mask, rhs, x, self.r, self.acc,
+                         self.bb, chunk, n),
+                     rec(k.cg_check, 1, *check, 0, blocks)]
+            body = [*self.preconditioner.record(self.r, self.z, blocks),
+                    rec(k.cg_dot, dim, self.r, self.z, self.acc, *state, chunk, n),
+                    rec(k.cg_direction, dim, mask, self.p, self.z, self.acc, *state, chunk, n),
+                    rec(k.cg_matvec, dim, self.offsets, self.columns, self.values, mask, self.p, self.q, self.acc,
+                        *state, chunk, n),
+                    rec(k.cg_update, dim, x, self.r, self.p, self.q, self.acc, self.converged, *state, chunk, n),
+                    rec(k.cg_check, 1, *check, 1, blocks)]
+            graph = self._capture(start, body) if self.capture else None
+            self._program = (key, start, body, graph)
+        return self._program[1:]
 
-    def _accumulators(self):
-        return self.acc.numpy().reshape(3, 4, -1)[:, :, :self.blocks * self.width]
+    def _capture(self, start, body):
+        """One graph: the start launches, then ``body`` while ``running`` is nonzero."""
+        wp.capture_begin(self.device, force_module_load=False)
+        try:
+            for launch in start:
+                launch.launch()
+            wp.capture_while(self.running, lambda: [launch.launch() for launch in body])
+        finally:
+            graph = wp.capture_end(self.device)
+        return graph
+
+    def _is_running(self):
+        return bool(self.running.numpy()[0])
 
     def solve(self, rhs, x, mask, rtol, max_iterations, atol=0.0):
         """Run PCG until |b - K x| <= max(rtol |b|, atol) in every lane or ``max_iterations``.
@@ -236,30 +255,22 @@ class BatchedPCG:
         relative_residual : (blocks * width,) ndarray, |r| / |b| per lane of the active blocks
             (0 where b = 0).
         """
-        init, matvec, update, direction = self._commands(rhs, x, mask)
-        self.acc.zero_()
-        init.launch()
-        acc = self._accumulators()
-        tol2 = np.maximum(rtol * rtol * acc[0, BB], np.square(atol))
-        self._tol2_host[:tol2.size] = tol2
-        self.tol2.assign(self._tol2_host.reshape(self.tol2.shape + (self.width,)))
-        it = 0
-        slot = 0
-        if self.vcycle is not None and not np.all(acc[slot, RR] <= tol2):
-            # z = M r and RZ into slot 0, then p = z (beta = 0: slot 2 is still zero)
-            self.vcycle.apply(mask, self.r, self.z, self.acc, 0)
-            direction[0].launch()
-        while not np.all(acc[slot, RR] <= tol2) and it < max_iterations:
-            it += 1
-            slot = it % 3
-            matvec[slot].launch()
-            update[slot].launch()
-            acc = self._accumulators()
-            if np.all(acc[slot, RR] <= tol2):
-                break
-            if self.vcycle is not None:
-                self.vcycle.apply(mask, self.r, self.z, self.acc, slot)
-            direction[slot].launch()
-        bb = acc[0, BB]
-        rel = np.sqrt(np.divide(acc[slot, RR], bb, out=np.zeros_like(bb), where=bb > 0))
-        return it, rel
+        lanes = self.blocks * self.width
+        self._atol2_host.reshape(-1)[:lanes] = np.square(np.broadcast_to(np.asarray(atol, dtype=np.float64), lanes))
+        _write(self.atol2, self._atol2_host)
+        _write(self.rtol2, rtol * rtol)
+        _write(self.counters, [0, min(int(max_iterations), 2**31 - 1)])
+        start, body, graph = self._launches(rhs, x, mask)
+        if graph is not None:
+            wp.capture_launch(graph)
+        else:
+            for launch in start:
+                launch.launch()
+            while self._is_running():
+                for _ in range(self.check_every):
+                    for launch in body:
+                        launch.launch()
+        it = int(self.counters.numpy()[ITERATION])
+        rr = self.acc.numpy().reshape(3, 3, -1)[it % 3, RR, :lanes].astype(np.float64)
+        bb = self.bb.numpy().reshape(-1)[:lanes].astype(np.float64)
+        return it, np.sqrt(np.divide(rr, bb, out=np.zeros_like(bb), where=bb > 0))
