@@ -14,6 +14,7 @@ from .operators import Operators, build_operators
 from .regularizers import REGULARIZERS
 from .solver import ConvergenceWarning, DistanceResult, DistanceSolver
 from .source_rows import distance_matrix
+from .tetrahedralize import tetrahedralize
 from .tolerances import Tolerances, tolerances
 
 __version__ = "0.1.0"
@@ -21,4 +22,4 @@ __version__ = "0.1.0"
 __all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "__version__"]
+           "Tolerances", "tolerances", "tetrahedralize", "__version__"]

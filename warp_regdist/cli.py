@@ -2,7 +2,8 @@
 
 Subcommands: ``demo`` (the spot cow shipped with the package), ``distance`` (any
 mesh file), ``allpairs`` (the symmetric all-pairs distance matrix) and ``matrix``
-(single-source rows written block by block, resumable, optionally on a Dask cluster).  Bad input (missing or malformed files, bad sources, an unknown device, an
+(single-source rows written block by block, resumable, optionally on a Dask cluster); ``volume`` (a closed surface
+tetrahedralized, then the distance inside it).  Bad input (missing or malformed files, bad sources, an unknown device, an
 unsupported output extension) ends with one line ``warp-regdist: error: ...`` on stderr
 and exit status 2; other exceptions are bugs and propagate with their traceback.
 """
@@ -168,6 +169,7 @@ def _parser() -> argparse.ArgumentParser:
     allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
     solver_options(allpairs)
     _add_matrix_parser(sub, solver_options)
+    _add_volume_parser(sub, solver_options)
     return parser
 
 
@@ -508,6 +510,127 @@ def _matrix(args: argparse.Namespace) -> None:
               f"Wrote {args.output}.")
 
 
+def _add_volume_parser(sub, solver_options) -> None:
+    volume = sub.add_parser(
+        "volume",
+        help="tetrahedralize a closed surface, then the distance inside it (.vtu, optional grid)",
+        description="Fill a closed triangle surface (STL, OBJ, OFF, PLY) with tetrahedra (TetGen,\n"
+        "pip install 'warp-regdist[volume]'), solve the regularized distance inside from the\n"
+        "boundary or from points, write it per vertex (.vtu) and optionally sampled on a regular\n"
+        "grid (NaN outside the solid) for SDF-like use.",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    volume.add_argument("surface", metavar="SURFACE", help="closed triangle surface (.stl, .obj, .off, .ply)")
+    volume.add_argument(
+        "--sources",
+        required=True,
+        metavar="boundary|FILE",
+        help="'boundary' (distance to the surface: depth) or a .csv file of rows 'x,y,z', each point "
+        "snapped to the nearest vertex of the tetrahedral mesh (said in the output)",
+    )
+    volume.add_argument("--alpha-hat", type=float, default=DEMO_ALPHA_HAT, metavar="A",
+                        help="scale-invariant regularization weight >= 0; alpha = A volume^(1/3) (default: 0.05)")
+    volume.add_argument("--output", required=True, metavar="FILE",
+                        help="the tetrahedral mesh with point data 'distance' (.vtu, opens in ParaView)")
+    volume.add_argument("--png", metavar="FILE", help="also write the distance's cut by the plane z = centre (.png)")
+    volume.add_argument("--grid", type=int, metavar="N",
+                        help="also sample the distance on a regular grid of N points along the longest side "
+                        "of the bounding box (needs --grid-output)")
+    volume.add_argument("--grid-output", metavar="FILE",
+                        help="the grid samples: .npy (nx, ny, nz) array, or .npz with 'values', 'origin' and "
+                        "'spacing' (point (i, j, k) at origin + spacing (i, j, k)); NaN outside the solid")
+    volume.add_argument("--max-volume", type=float, metavar="V",
+                        help="largest tetrahedron volume in the surface's units cubed (default: no bound)")
+    volume.add_argument("--quality", type=float, default=1.5, metavar="Q",
+                        help="largest radius-edge ratio of a tetrahedron, > 1 (default: 1.5)")
+    solver_options(volume)
+
+
+def _read_points(path: str) -> np.ndarray:
+    """(k, 3) points from the rows 'x,y,z' of a .csv file (--sources of ``volume``)."""
+    if not path.lower().endswith(".csv"):
+        raise ValueError(f"expected --sources 'boundary' or a .csv file of 'x,y,z' rows, got {path!r}")
+    if not os.path.isfile(path):
+        raise ValueError(f"expected --sources as an existing .csv file of 'x,y,z' rows, got {path!r} (no such file)")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
+            points = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except ValueError:
+        raise ValueError(f"expected --sources rows 'x,y,z' of numbers, got unreadable rows in {path!r}") from None
+    if points.size == 0 or points.shape[1] != 3:
+        raise ValueError(f"expected --sources rows 'x,y,z', got {points.shape[1] if points.size else 0} "
+                         f"columns in {path!r}")
+    if not np.isfinite(points).all():
+        raise ValueError(f"expected finite --sources coordinates, got NaN or inf in {path!r}")
+    return points
+
+
+def _volume(args: argparse.Namespace) -> None:
+    import time
+
+    from scipy.spatial import cKDTree
+
+    from .export import save_vtu
+    from .render import render_cut
+    from .tetrahedralize import tetrahedralize
+    from .volume_grid import sample_on_grid
+
+    _check_output(args.output, (".vtu",), "--output")
+    if args.png is not None:
+        _check_output(args.png, (".png",), "--png")
+    if (args.grid is None) != (args.grid_output is None):
+        raise ValueError("expected --grid N and --grid-output FILE together, got only "
+                         f"{'--grid' if args.grid_output is None else '--grid-output'}")
+    if args.grid is not None:
+        _check_output(args.grid_output, (".npy", ".npz"), "--grid-output")
+        if args.grid < 2:
+            raise ValueError(f"expected --grid N >= 2, got {args.grid}")
+    points = None if args.sources.strip().lower() == "boundary" else _read_points(args.sources)
+    surface = _load(args.surface)
+    name = os.path.basename(args.surface)
+    say = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    say(f"{name}: tetrahedralizing {surface.n_vertices} vertices, {surface.n_elements} faces with TetGen...")
+    start = time.perf_counter()
+    try:
+        mesh = tetrahedralize(surface, max_volume=args.max_volume, quality=args.quality)
+    except ModuleNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+    meshed = (f"TetGen: {mesh.n_elements} tetrahedra (quality {args.quality:g}"
+              f"{'' if args.max_volume is None else f', max volume {args.max_volume:g}'}, "
+              f"{mesh.components().max() + 1} shell(s)) in {time.perf_counter() - start:.2f} s")
+    say(meshed)
+    if points is None:
+        sources, described = _parse_sources(args.sources, mesh)
+    else:
+        moved, nearest = cKDTree(mesh.vertices).query(points)
+        sources = np.unique(nearest).astype(np.int64)
+        listed = ", ".join(str(s) for s in sources[:_LISTED_SOURCES])
+        more = f", ... ({sources.size} in all)" if sources.size > _LISTED_SOURCES else ""
+        described = (f"{len(points)} points snapped to the nearest vertices {listed}{more} (moved by at most "
+                     f"{moved.max():.3g}; point sources do not exist yet)")
+    solver, result = _solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet)
+    save_vtu(args.output, mesh, {"distance": result.distance})
+    written = [args.output]
+    if args.png is not None:
+        render_cut(mesh, result.distance, args.png,
+                   title=f"{name}: regularized distance, alpha_hat {solver.alpha_hat:g}, cut z = centre")
+        written.append(args.png)
+    if args.grid is not None:
+        say(f"sampling the distance on a grid of {args.grid} points along the longest side...")
+        grid = sample_on_grid(mesh, result.distance, args.grid)
+        if args.grid_output.lower().endswith(".npz"):
+            np.savez(args.grid_output, values=grid.values, origin=grid.origin, spacing=grid.spacing)
+        else:
+            np.save(args.grid_output, grid.values)
+        written.append(f"{args.grid_output} ({' x '.join(map(str, grid.values.shape))} grid, origin "
+                       f"{np.array2string(grid.origin, precision=4, separator=', ')}, spacing {grid.spacing:.4g}, "
+                       "NaN outside)")
+    if not args.quiet:
+        print(f"{meshed}. " + _summary(name, mesh, described, solver, result, written))
+
+
 def _demo(args: argparse.Namespace) -> None:
     from .render import render_distance
 
@@ -551,7 +674,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
     try:
-        {"demo": _demo, "distance": _distance, "allpairs": _allpairs, "matrix": _matrix}[args.command](args)
+        {"demo": _demo, "distance": _distance, "allpairs": _allpairs, "matrix": _matrix, "volume": _volume}[args.command](args)
     except (ValueError, OSError) as exc:  # MeshError is a ValueError
         message = " ".join(str(exc).split())
         print(f"{PROG}: error: {message}", file=sys.stderr)
