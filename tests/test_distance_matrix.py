@@ -1,6 +1,10 @@
 """distance_matrix: rows on a Dask LocalCluster (2 worker processes) equal the local rows, a
 killed worker's blocks are solved again, Zarr / .npy outputs are written block by block and
-resumed, mismatching outputs are refused, and the ``warp-regdist matrix`` command."""
+resumed, mismatching outputs are refused, and the ``warp-regdist matrix`` command.
+
+Dask runs its workers with one BLAS thread (OMP_NUM_THREADS=1), which rounds the multigrid
+set-up differently: their rows agree with this process's to ~1e-12 (bit for bit when this
+process also runs with one BLAS thread), hence ``CLUSTER`` below."""
 
 import inspect
 import json
@@ -20,6 +24,7 @@ pytest.importorskip("zarr")
 
 SOURCES = np.array([40, 3, 17, 88, 120, 5, 61, 150, 9, 33])  # not sorted: rows follow this order
 CHUNK = 3  # 4 blocks, the last one short
+CLUSTER = 1e-9  # agreement with the cluster's rows, relative to the largest distance
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +46,7 @@ def rows(mesh):
 @pytest.fixture(scope="module")
 def client():
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, distributed.Client(cluster) as c:
+                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as c:
         yield c
 
 
@@ -66,8 +71,9 @@ def test_cluster_equals_local(mesh, rows, client, tmp_path):
     raw, sym = rows
     lazy = _matrix(mesh, client=client)
     assert lazy.chunks[0] == (3, 3, 3, 1) and lazy.dtype == np.float64
-    assert np.array_equal(lazy.compute(), sym)
-    assert np.array_equal(_matrix(mesh, client=client, symmetrize=False).compute(), raw)
+    np.testing.assert_allclose(lazy.compute(), sym, rtol=0, atol=CLUSTER * sym.max())
+    np.testing.assert_allclose(_matrix(mesh, client=client, symmetrize=False).compute(), raw, rtol=0,
+                               atol=CLUSTER * raw.max())
     stored = _matrix(mesh, client=client, out=str(tmp_path / "D.zarr"), dtype="float32")
     assert stored.dtype == np.float32
     np.testing.assert_allclose(stored[:], sym, rtol=0, atol=2e-3 * sym.max())
@@ -92,7 +98,8 @@ def test_killed_worker_blocks_are_solved_again(mesh, rows, client, tmp_path):
 
     D = _matrix(mesh, client=client, out=str(tmp_path / "D.npy"), progress=kill_a_worker)
     assert marker.exists() and set(client.scheduler_info()["workers"]) != before
-    assert np.array_equal(D, rows[1])
+    assert not np.isnan(D).any()
+    np.testing.assert_allclose(D, rows[1], rtol=0, atol=CLUSTER * rows[1].max())
 
 
 @pytest.mark.parametrize("name", ["D.zarr", "D.npy"])
@@ -193,7 +200,7 @@ def test_cli_matrix_on_a_scheduler_and_resumed(mesh, rows, client, tmp_path, cap
     assert "10 single-source rows" in captured.out and "(0 already written)" in captured.out
     import zarr
 
-    assert np.array_equal(zarr.open_array(out, mode="r")[:], rows[1])
+    np.testing.assert_allclose(zarr.open_array(out, mode="r")[:], rows[1], rtol=0, atol=CLUSTER * rows[1].max())
     assert main(args[:-2]) == 0  # resumed here, without the cluster: nothing left to solve
     assert "(4 already written)" in capsys.readouterr().out
 

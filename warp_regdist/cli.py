@@ -448,7 +448,7 @@ def _dask_client(args: argparse.Namespace, stack):
     if args.workers < 1:
         raise ValueError(f"expected --workers as an integer >= 1, got {args.workers}")
     cluster = stack.enter_context(LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                               dashboard_address=None))
+                                               dashboard_address=":0"))
     return stack.enter_context(Client(cluster))
 
 

@@ -1,4 +1,4 @@
-"""Row blocks of a distance matrix, in memory or on disk (Zarr or a ``.npy`` memory map), resumable.
+"""Row blocks of a distance matrix, in memory or on disk (a Zarr array or a ``.npy`` file), resumable.
 
 A (k, n) matrix is written in blocks of ``chunk`` consecutive rows. On disk, next to the
 matrix ``D.zarr`` (or ``D.npy``) lies the directory ``D.zarr.progress`` holding the problem's
@@ -8,9 +8,9 @@ has no marker and is redone. An ``out`` whose fingerprint differs from the call'
 
 Symmetrization (D[r, src[c]] and D[c, src[r]] replaced by their mean) works block by block on
 the stored rows: while solving, each block's source columns are also written, tile-major,
-into ``source_columns.npy`` (S, (k, k) in (chunk, chunk) tiles), and row block I is then
-rewritten from S alone, D[I, src] = (S[I, :] + S[:, I]^T) / 2, so redoing it is harmless.
-Memory: two (chunk, n) row blocks and two (chunk, k) strips of S.
+into ``source_columns.npy`` (S, (k, k) in (chunk, chunk) tiles, removed at the end), and row
+block I is then rewritten from S alone, D[I, src] = (S[I, :] + S[:, I]^T) / 2, so redoing it
+is harmless. Memory: a (chunk, n) row block and two (chunk, k) strips of S.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import shutil
 
 import numpy as np
 
-__all__ = ["MemoryRows", "DiskRows", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
+__all__ = ["MemoryRows", "DiskRows", "NpyFile", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
 
 OUT_EXTENSIONS = (".zarr", ".npy")
 
@@ -60,6 +60,28 @@ class MemoryRows:
         return self.array
 
 
+class NpyFile:
+    """A ``.npy`` file read and written in place by file offsets, never mapped (so a long run's
+    memory does not grow with the pages it touched). Values are addressed by flat C-order index."""
+
+    def __init__(self, path, shape=None, dtype=None):
+        """Open ``path``, or create it (sparse, zeros) when ``shape`` and ``dtype`` are given."""
+        m = (np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape) if shape is not None
+             else np.load(path, mmap_mode="r"))
+        self.path, self.shape, self.dtype, self.offset = path, m.shape, m.dtype, m.offset
+        del m
+
+    def write(self, start, values):
+        with open(self.path, "r+b") as f:
+            f.seek(self.offset + start * self.dtype.itemsize)
+            f.write(np.ascontiguousarray(values, dtype=self.dtype).data)
+
+    def read(self, start, count):
+        with open(self.path, "rb") as f:
+            f.seek(self.offset + start * self.dtype.itemsize)
+            return np.fromfile(f, dtype=self.dtype, count=count)
+
+
 class DiskRows:
     """A matrix stored at ``path`` (Zarr array or ``.npy``) with its progress record; see the module doc."""
 
@@ -69,6 +91,7 @@ class DiskRows:
         self.zarr = self.path.lower().endswith(".zarr")
         self.shape, self.chunk, self.dtype = shape, chunk, np.dtype(dtype)
         self.blocks = -(-shape[0] // chunk)
+        self.tiles_path = os.path.join(self.progress, "source_columns.npy")
         if self.zarr:
             import zarr  # the 'distributed' extra; imported first, so nothing is created without it
             self._zarr = zarr
@@ -101,11 +124,10 @@ class DiskRows:
                                                chunks=(self.chunk, self.shape[1]), dtype=self.dtype,
                                                fill_value=np.nan)
         else:
-            self.array = np.lib.format.open_memmap(self.path, mode="w+", dtype=self.dtype, shape=self.shape)
+            self.array = NpyFile(self.path, self.shape, self.dtype)
 
     def _open(self):
-        array = (self._zarr.open_array(store=self.path, mode="r+") if self.zarr
-                 else np.lib.format.open_memmap(self.path, mode="r+"))
+        array = self._zarr.open_array(store=self.path, mode="r+") if self.zarr else NpyFile(self.path)
         if tuple(array.shape) != tuple(self.shape) or np.dtype(array.dtype) != self.dtype:
             raise ValueError(f"expected {self.path!r} of shape {self.shape} and dtype {self.dtype}, "
                              f"got shape {tuple(array.shape)} and dtype {array.dtype}")
@@ -127,53 +149,55 @@ class DiskRows:
         """Indices of the row blocks without a completion marker."""
         return [b for b in range(self.blocks) if not self._done("rows", b)]
 
-    def _tiles(self, mode):
-        """S in (chunk, chunk) tiles: memory map of shape (blocks, blocks, chunk, chunk)."""
-        path = os.path.join(self.progress, "source_columns.npy")
-        if mode == "r+" and not os.path.exists(path):
-            mode = "w+"
-        shape = (self.blocks, self.blocks, self.chunk, self.chunk)
-        return np.lib.format.open_memmap(path, mode=mode, dtype=self.dtype, shape=shape if mode == "w+" else None)
+    def _rows(self, lo, hi):
+        if self.zarr:
+            return self.array[lo:hi]
+        return self.array.read(lo * self.shape[1], (hi - lo) * self.shape[1]).reshape(hi - lo, self.shape[1])
 
     def _write_rows(self, block, rows):
-        self.array[block * self.chunk:block * self.chunk + len(rows)] = rows
-        if not self.zarr:
-            self.array.flush()
+        lo = block * self.chunk
+        if self.zarr:
+            self.array[lo:lo + len(rows)] = rows
+        else:
+            self.array.write(lo * self.shape[1], rows)
 
     def write(self, block, rows, sources):
-        """Rows of ``block`` (and, when ``sources`` is given, their source columns into S), then its marker."""
+        """Rows of ``block`` (and, when ``sources`` is given, their source columns into S), then its marker.
+
+        S is a (blocks, blocks, chunk, chunk) ``.npy``: tile (i, j) = S[rows of block i, columns of block j].
+        """
         self._write_rows(block, rows)
         if sources is not None:
-            tiles = self._tiles("r+")
-            strip = np.zeros((self.chunk, self.blocks * self.chunk), dtype=self.dtype)
+            nb, c = self.blocks, self.chunk
+            tiles = (NpyFile(self.tiles_path) if os.path.exists(self.tiles_path)
+                     else NpyFile(self.tiles_path, (nb, nb, c, c), self.dtype))
+            strip = np.zeros((c, nb * c), dtype=self.dtype)
             strip[:len(rows), :len(sources)] = rows[:, sources]
-            tiles[block] = strip.reshape(self.chunk, self.blocks, self.chunk).transpose(1, 0, 2)
-            tiles.flush()
-            del tiles
+            tiles.write(block * nb * c * c, strip.reshape(c, nb, c).transpose(1, 0, 2))
         self._mark("rows", block)
 
     def symmetrize(self, sources):
         """Average the pairs of source columns, block by block from S; S is removed when all are done."""
-        k = len(sources)
-        path = os.path.join(self.progress, "source_columns.npy")
-        todo = [b for b in range(self.blocks) if not self._done("symmetric", b)]
+        k, nb, c = len(sources), self.blocks, self.chunk
+        todo = [b for b in range(nb) if not self._done("symmetric", b)]
         if todo:
-            tiles = self._tiles("r")
-            for block in todo:
-                lo, hi = block * self.chunk, min(k, (block + 1) * self.chunk)
-                s_rows = tiles[block].transpose(1, 0, 2).reshape(self.chunk, -1)[:hi - lo, :k]
-                s_cols = tiles[:, block].reshape(-1, self.chunk)[:k, :hi - lo]
-                rows = average_source_pairs(np.asarray(self.array[lo:hi]), sources, s_rows, s_cols)
-                self._mark("rows", block, done=False)  # a write cut short is then solved again
-                self._write_rows(block, rows)
-                self._mark("rows", block)
-                self._mark("symmetric", block)
-            del tiles
-        if os.path.exists(path):
-            os.remove(path)
+            tiles = NpyFile(self.tiles_path)
+        for block in todo:
+            lo, hi = block * c, min(k, (block + 1) * c)
+            s_rows = tiles.read(block * nb * c * c, nb * c * c).reshape(nb, c, c).transpose(1, 0, 2)
+            s_cols = np.concatenate([tiles.read((j * nb + block) * c * c, c * c).reshape(c, c) for j in range(nb)])
+            rows = average_source_pairs(self._rows(lo, hi), sources, s_rows.reshape(c, -1)[:hi - lo, :k],
+                                        s_cols[:k, :hi - lo])
+            self._mark("rows", block, done=False)  # a write cut short is then solved again
+            self._write_rows(block, rows)
+            self._mark("rows", block)
+            self._mark("symmetric", block)
+        if os.path.exists(self.tiles_path):
+            os.remove(self.tiles_path)
 
     def result(self):
-        return self.array
+        """The Zarr array, or the ``.npy`` as a read-write memory map."""
+        return self.array if self.zarr else np.load(self.path, mmap_mode="r+")
 
 
 def open_rows(out, shape, chunk, dtype, fingerprint):

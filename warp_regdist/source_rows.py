@@ -4,7 +4,7 @@ Row r of the result is the single-source regularized distance (Algorithm 1) from
 ``sources[r]``. The rows are solved in blocks of ``chunk`` sources, each block one batched
 ADMM (:meth:`DistanceSolver.solve_many`): here, or as tasks on a Dask cluster
 (:mod:`warp_regdist.distributed`). Blocks go to memory or, with ``out``, to a Zarr array or
-a ``.npy`` memory map, resumably (:mod:`warp_regdist.matrix_store`). The rows are not
+a ``.npy`` file, resumably (:mod:`warp_regdist.matrix_store`). The rows are not
 symmetric (d(x, y) != d(y, x) for alpha > 0); ``symmetrize`` averages the two values of
 every pair of source vertices, as the paper does for its "symmetrized fixed-source"
 comparison. Unlike :func:`~warp_regdist.all_pairs`, no constraint couples the rows, so this
@@ -57,7 +57,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         the mesh goes once to every worker, which builds its solver once.
     out : str, path or None
         Write the matrix to this ``.zarr`` (Zarr array, chunks of (chunk, n), NaN where not yet
-        written; needs zarr) or ``.npy`` (memory map, 0 where not yet written) path, block by block,
+        written; needs zarr) or ``.npy`` (0 where not yet written) path, block by block,
         never holding the whole matrix in memory. Run again with the same arguments, it skips
         the blocks already written; a path holding another problem is refused.
     progress : callable or None
