@@ -167,6 +167,19 @@ def _parser() -> argparse.ArgumentParser:
         help="scale-invariant regularization weight >= 0; alpha = A sqrt(area) (default: 0.03)",
     )
     allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
+    allpairs.add_argument(
+        "--checkpoint",
+        metavar="FILE",
+        help="write the whole solver state to FILE (.npz) every --checkpoint-seconds, at the iteration cap "
+        "and on Ctrl-C, so that --resume FILE continues the run (the same matrix as an uninterrupted run)",
+    )
+    allpairs.add_argument("--checkpoint-seconds", type=float, default=300.0, metavar="S",
+                          help="seconds between checkpoints (default: 300)")
+    allpairs.add_argument("--resume", metavar="FILE", help="continue from a checkpoint of the same problem")
+    allpairs.add_argument("--max-iterations", type=int, default=3000, metavar="N",
+                          help="ADMM iteration cap (default: 3000)")
+    allpairs.add_argument("--workers", type=int, default=None, metavar="N",
+                          help="CPU processes sharing every step (default: the cores available)")
     solver_options(allpairs)
     _add_matrix_parser(sub, solver_options)
     _add_volume_parser(sub, solver_options)
@@ -250,7 +263,9 @@ def _solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verb
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
     with _warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose)
-    if not result.converged:
+    if result.interrupted:
+        _warn(f"interrupted at ADMM iteration {result.iterations}: the distance written is the current iterate")
+    elif not result.converged:
         _warn(
             f"the ADMM did not converge in {result.iterations} iterations (primal residual "
             f"{result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}); the "
@@ -353,13 +368,24 @@ def _allpairs(args: argparse.Namespace) -> None:
     from . import ConvergenceWarning, all_pairs
 
     _check_output(args.output, (".npy",), "--output")
+    if args.checkpoint is not None:
+        _check_output(args.checkpoint, (".npz",), "--checkpoint")
+    if args.resume is not None and not os.path.isfile(args.resume):
+        raise ValueError(f"expected --resume as an existing checkpoint file, got {args.resume!r} (no such file)")
     mesh = _load(args.mesh)
     wp.config.log_level = wp.LOG_WARNING
     with _warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
-                           progress=None if args.quiet else _allpairs_progress())
-    if not result.converged:
-        _warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is approximate")
+                           progress=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
+                           workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
+                           resume=args.resume)
+    saved = f"; the solver state is in {args.checkpoint} (continue with --resume {args.checkpoint})" \
+        if args.checkpoint is not None else ""
+    if result.interrupted:
+        _warn(f"interrupted at ADMM iteration {result.iterations}: the matrix written is the current iterate{saved}")
+    elif not result.converged:
+        _warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is "
+              f"approximate{saved}")
     np.save(args.output, result.distance)
     if not args.quiet:
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. All-pairs regularized distance, "
