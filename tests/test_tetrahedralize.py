@@ -2,8 +2,8 @@
 ``warp-regdist volume`` command.
 
 Why a wrong implementation fails:
-- tetrahedra that do not fill the solid (a lost region, a cavity filled, an inverted
-  orientation) change the total volume, asserted to 1e-9 against the surface's enclosed
+- tetrahedra that do not fill the solid (a lost region, a cavity filled or an island
+  in it removed, an inverted orientation) change the total volume, asserted to 1e-9 against the surface's enclosed
   volume, or the distance, asserted within 3% of the solid ball's closed form;
 - a grid sampler with wrong barycentric coordinates or indices misses the exact values
   of a linear field (asserted to 1e-12) or puts values outside the solid;
@@ -86,6 +86,33 @@ def test_disjoint_shells_become_components_and_quality_none_meshes_coarsely():
     assert refined.n_vertices > mesh.n_vertices
 
 
+@pytest.mark.parametrize("flip", [False, True], ids=["inner shell outward", "inner shell inward"])
+def test_shell_inside_a_shell_is_a_cavity_and_a_shell_inside_that_a_solid(flip):
+    outer, inner = _sphere(3), _sphere(2, radius=0.5, flip=flip)
+    hollow = _join(outer, inner)
+    mesh = wrd.tetrahedralize(hollow, max_volume=0.005)
+    expected = abs(_enclosed_volume(wrd.Mesh(*outer))) - abs(_enclosed_volume(wrd.Mesh(*inner)))
+    assert _tet_volume(mesh) == pytest.approx(expected, rel=1e-9)
+    res = wrd.DistanceSolver(mesh, alpha_hat=0.02).solve(wrd.boundary_vertices(mesh))
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert np.all(res.distance[(r > 0.999) | (r < 0.501)] == 0.0)  # both spheres are boundary
+    assert 0.7 < r[np.argmax(res.distance)] < 0.8 and 0.2 < res.distance.max() <= 0.25  # exact: 0.25 at r = 0.75
+    island = wrd.tetrahedralize(_join(outer, inner, _sphere(1, radius=0.3)), quality=None)
+    assert island.components().max() == 1
+    assert _tet_volume(island) == pytest.approx(expected + abs(_enclosed_volume(wrd.Mesh(*_sphere(1, radius=0.3)))),
+                                                rel=1e-9)
+
+
+def test_touching_shells_are_refused_and_tetgen_leaves_no_files(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    a, b = trimesh.creation.box(), trimesh.creation.box()
+    b.apply_translation([1.0, 0.5, 0.0])  # a coplanar contact, which the crossing test does not see
+    with pytest.raises(ValueError, match=r"expected a surface TetGen can tetrahedralize, got its error: "
+                                         r"The input surface mesh contain self-intersections"):
+        wrd.tetrahedralize(_join((a.vertices, a.faces), (b.vertices, b.faces)))
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     "surface, message",
     [
@@ -93,13 +120,11 @@ def test_disjoint_shells_become_components_and_quality_none_meshes_coarsely():
          r"expected a closed \(watertight\) surface, got 3 boundary edges \(first: between vertices \[\d+, \d+\]\)"),
         (lambda: _join(_sphere(2), _sphere(2, center=(1.0, 0.0, 0.0))),
          r"expected a surface that does not intersect itself, got \d+ crossing face pairs \(first: faces \d+ and \d+\)"),
-        (lambda: _join(_sphere(2), _sphere(2, radius=0.5, flip=True)),
-         r"expected disjoint shells, got shell 1 inside shell 0 \(of 2\); cavities are not supported"),
         (lambda: wrd.tetrahedralize(wrd.Mesh(*_sphere(1)), quality=None),
          r"expected a triangle surface, got a tetrahedral mesh \(\d+ tetrahedra\)"),
         (lambda: np.zeros((4, 3)), r"expected a triangle surface \(a Mesh or a file path\), got ndarray"),
     ],
-    ids=["open", "self-intersecting", "nested", "tetrahedra", "array"],
+    ids=["open", "self-intersecting", "tetrahedra", "array"],
 )
 def test_unusable_surfaces_are_refused(surface, message):
     with pytest.raises(ValueError, match=message):

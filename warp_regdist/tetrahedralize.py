@@ -1,13 +1,15 @@
 """Closed triangle surface -> tetrahedral mesh of the solid it bounds (TetGen, through the ``tetgen`` package).
 
-The surface is checked first (closed, not intersecting itself, shells not nested),
-since TetGen either fails with a vague message or crashes the process on such input.
+The surface is checked first (closed, not intersecting itself), since TetGen either
+fails with a vague message or crashes the process on such input; shells inside other
+shells bound cavities, which TetGen is told to leave empty.
 TetGen is deterministic (its internal random seed is fixed): the same surface and
 settings give the same tetrahedra on every run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import numpy as np
@@ -17,6 +19,7 @@ from .mesh_io import load_mesh
 
 __all__ = ["tetrahedralize"]
 
+_TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")  # what TetGen writes into the working directory when it fails
 _PAIR_CHUNK = 2_000_000  # candidate (face, cell) entries handled at once in the self-intersection test
 
 
@@ -28,7 +31,8 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     surface : Mesh or str or os.PathLike
         Closed (watertight), manifold, not self-intersecting triangle surface, or a
         surface file for :func:`load_mesh`. Several disjoint shells give a mesh with one
-        connected component per shell; nested shells (cavities) are refused.
+        connected component per shell; a shell inside another bounds a cavity (left
+        empty), a shell inside that cavity a solid again, and so on.
     max_volume : float, optional
         Largest tetrahedron volume (mesh units cubed, TetGen ``-a``); default: no bound,
         the tetrahedra are then only as small as the surface's triangles and ``quality``
@@ -51,7 +55,7 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     ------
     MeshError
         For a tetrahedral input, an open surface (boundary edges), a self-intersecting
-        surface, nested shells, or a surface TetGen cannot mesh.
+        surface, or a surface TetGen cannot mesh.
     ValueError
         For max_volume, quality or min_dihedral out of range.
     ModuleNotFoundError
@@ -80,17 +84,25 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     F = np.searchsorted(used, surface.faces)
     _check_closed(F, used)
     _check_no_self_intersection(V, F)
-    _check_shells_not_nested(V, F)
+    cavities = _cavity_points(V, F)
 
     options = {"quality": quality is not None, "quiet": True, "nowarning": True}
     if quality is not None:
         options.update(minratio=float(quality), mindihedral=float(min_dihedral))
     if max_volume is not None:
         options.update(fixedvolume=True, maxvolume=float(max_volume))
+    debris = [name for name in _TETGEN_DEBRIS if not os.path.exists(name)]
     try:
-        nodes, tets, *_ = tetgen.TetGen(V, F.astype(np.int32)).tetrahedralize(**options)
+        mesher = tetgen.TetGen(V, F.astype(np.int32))
+        for point in cavities:
+            mesher.add_hole(point)
+        nodes, tets, *_ = mesher.tetrahedralize(**options)
     except RuntimeError as exc:
         raise MeshError(f"expected a surface TetGen can tetrahedralize, got its error: {exc}") from None
+    finally:
+        for name in debris:
+            with contextlib.suppress(OSError):
+                os.remove(name)
     tets = np.asarray(tets, dtype=np.int64)
     keep = np.zeros(len(nodes), bool)
     keep[tets.ravel()] = True
@@ -121,22 +133,41 @@ def _face_components(F):
     return labels[F[:, 0]]
 
 
-def _check_shells_not_nested(V, F):
-    """Refuse a shell inside another (a cavity): TetGen would fill it (generalized winding number test)."""
+def _cavity_points(V, F):
+    """(c, 3) one point inside every cavity: the region enclosed by a shell that lies inside an
+    odd number of other shells (generalized winding numbers), outside the shells within it.
+
+    The point is a face centroid of the cavity's shell moved by a hundredth of the face's
+    shortest edge to the shell's inner side; TetGen removes the tetrahedra of the region
+    holding it (``-p`` with holes), and solids nested deeper stay meshed.
+    """
     import igl
 
     shells = _face_components(F)
     count = shells.max() + 1
     if count == 1:
-        return
+        return np.zeros((0, 3))
     probes = V[F[np.unique(shells, return_index=True)[1], 0]]  # one vertex of every shell
+    contains = np.zeros((count, count), bool)  # contains[s, t]: shell t inside shell s
     for s in range(count):
+        contains[s] = np.abs(igl.winding_number(V, F[shells == s], probes)) > 0.5
+        contains[s, s] = False
+    points = []
+    for s in np.flatnonzero(contains.sum(axis=0) % 2 == 1):
         faces = F[shells == s]
-        inside = np.abs(igl.winding_number(V, faces, probes)) > 0.5
-        inside[s] = False
-        if inside.any():
-            raise MeshError(f"expected disjoint shells, got shell {int(np.argmax(inside))} inside shell {s} "
-                            f"(of {count}); cavities are not supported")
+        P = V[faces]
+        lengths = np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).min(axis=1)
+        f = int(np.argmax(lengths))
+        normal = np.cross(P[f, 1] - P[f, 0], P[f, 2] - P[f, 0])
+        centroid = P[f].mean(axis=0)
+        step = 0.01 * lengths[f] * normal / np.linalg.norm(normal)
+        sides = np.stack([centroid + step, centroid - step])
+        inside = np.abs(igl.winding_number(V, faces, sides)) > 0.5
+        if inside[0] == inside[1]:
+            raise MeshError(f"expected shells that bound volumes, got shell {s} with no inner side at face "
+                            f"{int(np.flatnonzero(shells == s)[f])}")
+        points.append(sides[int(np.argmax(inside))])
+    return np.array(points).reshape(-1, 3)
 
 
 def _check_no_self_intersection(V, F):
