@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
+wp.config.log_level = wp.LOG_WARNING
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
@@ -82,7 +83,6 @@ def pcg_run(K, hierarchy, cols):
 
 
 def run_case(case):
-    wp.config.quiet = True
     K = wrd.build_operators(mesh_of(case)).stiffness
     rows = []
     for name, build in (("warp_regdist", multigrid.smoothed_aggregation), ("pyamg", pyamg_hierarchy)):
