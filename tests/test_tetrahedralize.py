@@ -137,6 +137,8 @@ def test_unusable_surfaces_are_refused(surface, message):
         ({"max_volume": 0.0}, r"expected max_volume > 0 \(or None\), got 0.0"),
         ({"max_volume": float("nan")}, r"expected max_volume > 0 \(or None\), got nan"),
         ({"quality": 1.0}, r"expected quality \(largest radius-edge ratio\) > 1 \(or None\), got 1.0"),
+        ({"max_volume": "0.1"}, r"expected max_volume > 0 \(or None\), got '0.1'"),
+        ({"quality": True}, r"expected quality \(largest radius-edge ratio\) > 1 \(or None\), got True"),
         ({"min_dihedral": 30}, r"expected min_dihedral in \[0, 18\] degrees, got 30"),
     ],
 )

@@ -67,11 +67,11 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
         raise ValueError(f"expected a triangle surface (a Mesh or a file path), got {type(surface).__name__}")
     if surface.element_dim != 2:
         raise MeshError(f"expected a triangle surface, got a tetrahedral mesh ({surface.n_elements} tetrahedra)")
-    if max_volume is not None and not (np.isscalar(max_volume) and np.isfinite(max_volume) and max_volume > 0):
+    if max_volume is not None and not (_is_real(max_volume) and np.isfinite(max_volume) and max_volume > 0):
         raise ValueError(f"expected max_volume > 0 (or None), got {max_volume!r}")
-    if quality is not None and not (np.isscalar(quality) and np.isfinite(quality) and quality > 1.0):
+    if quality is not None and not (_is_real(quality) and np.isfinite(quality) and quality > 1.0):
         raise ValueError(f"expected quality (largest radius-edge ratio) > 1 (or None), got {quality!r}")
-    if not (np.isscalar(min_dihedral) and 0.0 <= min_dihedral <= 18.0):
+    if not (_is_real(min_dihedral) and 0.0 <= min_dihedral <= 18.0):
         raise ValueError(f"expected min_dihedral in [0, 18] degrees, got {min_dihedral!r}")
     try:
         import tetgen
@@ -109,6 +109,11 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     keep[: len(V)] = True
     renumber = np.cumsum(keep) - 1
     return Mesh(np.asarray(nodes)[keep], renumber[tets])
+
+
+def _is_real(value):
+    """A real number (Python or numpy), not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
 def _check_closed(F, numbers):
