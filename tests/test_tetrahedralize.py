@@ -75,6 +75,17 @@ def test_same_surface_gives_same_tetrahedra_and_keeps_surface_vertices_first():
     assert wrd.tetrahedralize(wrd.Mesh(V, F), max_volume=0.005).n_elements > 2 * first.n_elements
 
 
+def test_vertices_at_one_position_are_welded():
+    V, F = _sphere(2)
+    seam = np.concatenate([V, V[:1]])  # a copy of vertex 0, used by half of its faces: open by indices
+    F = F.copy()
+    fan = np.flatnonzero((F == 0).any(axis=1))[::2]
+    F[fan] = np.where(F[fan] == 0, len(V), F[fan])
+    mesh = wrd.tetrahedralize(wrd.Mesh(seam, F), max_volume=0.02)
+    assert np.array_equal(mesh.vertices[: len(V)], V)
+    assert _tet_volume(mesh) == pytest.approx(_enclosed_volume(wrd.Mesh(V, _sphere(2)[1])), rel=1e-9)
+
+
 def test_disjoint_shells_become_components_and_quality_none_meshes_coarsely():
     surface = _join(_sphere(1), _sphere(1, center=(3.0, 0.0, 0.0), radius=0.5))
     mesh = wrd.tetrahedralize(surface, quality=None)

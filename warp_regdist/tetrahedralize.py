@@ -49,7 +49,8 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     Mesh
         Tetrahedral mesh, positively oriented. Its first vertices are the surface's
         vertices that faces reference, in the surface's order (unreferenced ones are
-        dropped), followed by the points TetGen inserted (on the surface and inside).
+        dropped, and of vertices at the same position only the first is kept), followed
+        by the points TetGen inserted (on the surface and inside).
 
     Raises
     ------
@@ -79,9 +80,11 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
         raise ModuleNotFoundError("expected the optional package 'tetgen' for tetrahedralize "
                                   "(pip install 'warp-regdist[volume]'), got none installed") from None
 
-    used = np.unique(surface.faces)
+    _, first, same = np.unique(surface.vertices, axis=0, return_index=True, return_inverse=True)
+    welded = first[same.ravel()][surface.faces]  # vertices at one position are one vertex (OBJ seams)
+    used = np.unique(welded)
     V = surface.vertices[used]
-    F = np.searchsorted(used, surface.faces)
+    F = np.searchsorted(used, welded)
     _check_closed(F, used)
     _check_no_self_intersection(V, F)
     cavities = _cavity_points(V, F)
