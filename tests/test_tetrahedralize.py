@@ -50,8 +50,8 @@ def _tet_volume(mesh):
 
 
 def test_ball_depth_matches_closed_form():
-    # measured: 2.66% of the maximum (p99 2.3%, mean 0.8%; the icosphere's faces lie up to
-    # 0.4% of the radius inside the sphere), 9,216 tets, at alpha = 0.2 (the constraint is
+    # measured: 2.7% of the maximum (p99 2.3%, mean 0.8%; the icosphere's faces lie up to
+    # 0.45% of the radius inside the sphere), 9,216 tets, at alpha = 0.2 (the constraint is
     # active on 0.6 < r < 1); alpha scaled as sqrt(V) instead of V^(1/3) gives 11%
     surface = wrd.Mesh(*_sphere(3))
     mesh = wrd.tetrahedralize(surface, max_volume=0.001, quality=1.2, min_dihedral=18)

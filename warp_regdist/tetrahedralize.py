@@ -34,9 +34,9 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
         connected component per shell; a shell inside another bounds a cavity (left
         empty), a shell inside that cavity a solid again, and so on.
     max_volume : float, optional
-        Largest tetrahedron volume (mesh units cubed, TetGen ``-a``); default: no bound,
-        the tetrahedra are then only as small as the surface's triangles and ``quality``
-        require.
+        Target largest tetrahedron volume (mesh units cubed, TetGen ``-a``; TetGen may
+        leave a few tetrahedra above it on coarse meshes); default: none, the tetrahedra
+        are then only as small as the surface's triangles and ``quality`` require.
     quality : float or None
         Largest radius-edge ratio (circumradius / shortest edge) of a tetrahedron, > 1
         (TetGen ``-q``; the regular tetrahedron has 0.61). None: no quality refinement,
