@@ -19,10 +19,10 @@ import warnings
 
 import numpy as np
 
+from .arguments import check_weight, parse_workers
 from .kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from .mesh import Mesh
-from .regularizers import check_weight
 from .solver import ConvergenceWarning, DistanceSolver
 
 __all__ = ["distance_matrix", "solve_rows", "mesh_sha256"]
@@ -79,6 +79,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         raise ValueError(f"expected symmetrize as True or False, got {symmetrize!r}")
     if isinstance(chunk, (bool, np.bool_)) or not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
         raise ValueError(f"expected chunk as an integer >= 1, got {chunk!r}")
+    parse_workers(workers)
     if progress is not None and not callable(progress):
         raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     n = mesh.n_vertices
