@@ -625,7 +625,7 @@ def _volume(args: argparse.Namespace) -> None:
         raise ValueError(str(exc)) from None
     meshed = (f"TetGen: {mesh.n_elements} tetrahedra (quality {args.quality:g}"
               f"{'' if args.max_volume is None else f', max volume {args.max_volume:g}'}, "
-              f"{mesh.components().max() + 1} shell(s)) in {time.perf_counter() - start:.2f} s")
+              f"{mesh.components().max() + 1} connected component(s)) in {time.perf_counter() - start:.2f} s")
     say(meshed)
     if points is None:
         sources, described = _parse_sources(args.sources, mesh)
