@@ -3,7 +3,7 @@
     python benchmarks/all_pairs.py                         # cat_rr, float32 and float64, baseline
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline
     python benchmarks/all_pairs.py --reference-scale 0.2   # also a run at tolerances x 0.2 (slow)
-    python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 thread vs all cores
+    python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 process vs all cores
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -58,7 +58,7 @@ def main():
     parser.add_argument("--reference-scale", type=float, default=None)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--workers", type=int, nargs="+", default=[0],
-                        help="CPU threads of each all_pairs run (0: all cores; several values: one run each)")
+                        help="CPU processes of each all_pairs run (0: all cores; several values: one run each)")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)

@@ -102,7 +102,7 @@ def _attach(specs, fd):
 _WORKER = """
 import sys
 import warp
-warp.config.quiet = True
+warp.config.log_level = warp.LOG_WARNING
 from warp_regdist.processes import _serve
 _serve(int(sys.argv[1]), int(sys.argv[2]))
 """
@@ -232,6 +232,9 @@ def _serve(read_fd, write_fd):
     except EOFError:
         return
     try:
+        from .arguments import parse_device
+
+        parse_device("cpu")  # starts Warp without its CUDA-driver warning
         factory, args, index, stop_flag = message
         interrupt.use_flag(stop_flag["stop"])
         obj = factory(*args, index)
