@@ -172,5 +172,9 @@ def test_preconditioner_operator_and_bad_options(spot_stiffness, device):
     with pytest.raises(ValueError, match=r"expected a preconditioner for 4764 unknowns, got 300"):
         small = JacobiPreconditioner(spot_stiffness[:300, :300], wp.float64, 1, device)
         BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner=small)
+    pcg = BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner="jacobi")
+    with pytest.raises(ValueError, match=r"expected atol a scalar or a \(1,\) array, got shape \(2,\)"):
+        pcg.solve(_lanes(b, "float64", device), _lanes(0 * b, "float64", device), _lanes(mask, "float64", device),
+                  1e-8, 10, atol=[1e-3, 1e-3])
     with pytest.raises(ValueError, match=r"expected check_every a positive integer, got 0"):
         BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner="jacobi", check_every=0)

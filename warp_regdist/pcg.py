@@ -256,7 +256,10 @@ class BatchedPCG:
             (0 where b = 0).
         """
         lanes = self.blocks * self.width
-        self._atol2_host.reshape(-1)[:lanes] = np.square(np.broadcast_to(np.asarray(atol, dtype=np.float64), lanes))
+        atol = np.asarray(atol, dtype=np.float64)
+        if atol.shape not in ((), (lanes,)):
+            raise ValueError(f"expected atol a scalar or a ({lanes},) array, got shape {atol.shape}")
+        self._atol2_host.reshape(-1)[:lanes] = np.square(atol)
         _write(self.atol2, self._atol2_host)
         _write(self.rtol2, rtol * rtol)
         _write(self.counters, [0, min(int(max_iterations), 2**31 - 1)])
