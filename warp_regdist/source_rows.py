@@ -50,8 +50,8 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         Rows per block: one batched ADMM, one Dask task, one stored block (memory grows
         linearly with it).
     workers : int or None
-        CPU threads of the local solver (each block is split among them); with a client each
-        task runs on one thread of its Dask worker.
+        CPU workers of the local solver, as for :class:`DistanceSolver` (each block is split
+        among them); with a client each task runs on one core of its Dask worker.
     client : dask.distributed.Client or None
         Solve the blocks as tasks on this cluster (needs ``pip install 'warp-regdist[distributed]'``);
         the mesh goes once to every worker, which builds its solver once.
