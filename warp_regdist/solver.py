@@ -322,6 +322,10 @@ class DistanceSolver:
         slot_values = np.stack([np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A,
                                 np.sqrt(np.square(self.operators.vertex_volumes) @ free)])
         eps_dual_abs, load_norm = slot_values
+        # change test (tolerances.eps_change): per slot, u at the last test and whether that test held
+        window, eps_change = tol.change_window, factor * tol.eps_change
+        snapshot = np.zeros((n, nb * W))
+        settled = np.zeros((1, nb * W), dtype=bool)
 
         iterations = np.full(k, -1)
         out = np.zeros((n, k))
@@ -343,7 +347,14 @@ class DistanceSolver:
                 dy = np.maximum(np.sqrt(acc[DY2]), load_norm[:live])
                 dual_scale = eps_dual_abs[:live] + dy
                 eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
-                done = (r <= eps_pri) & (s <= eps_dual)  # <=: a source-only column has r = s = eps = 0
+                if it % window == 0:
+                    u_now = ws["u"].numpy().reshape(n, -1)[:, :live]
+                    moved = np.abs(u_now - snapshot[:, :live]).max(axis=0)
+                    with np.errstate(invalid="ignore"):  # eps_change = inf (no change test) times 0
+                        settled[0, :live] = (moved == 0) | (moved <= eps_change * np.abs(u_now).max(axis=0))
+                    snapshot[:, :live] = u_now
+                # <=: a source-only column has r = s = eps = 0 and u = 0
+                done = (r <= eps_pri) & (s <= eps_dual) & settled[0, :live]
                 new = np.flatnonzero(done & (slot_col[:live] >= 0))
                 if new.size:  # freeze each column at the iterate that met its stopping test
                     cols = slot_col[new]
@@ -360,7 +371,7 @@ class DistanceSolver:
                     break
                 if new.size:
                     per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
-                    live = batch.compact(slot_col, slot_values, per_slot)
+                    live = batch.compact(slot_col, slot_values, per_slot, snapshot, settled)
                     r, s, eps_dual, dual_scale = per_slot[:, :live]
                 rho = L * min(rho_max, rho0 * 2.0 ** (it / tol.rho_doubling))
                 ws["rho"].assign(np.full((nb, W), rho))

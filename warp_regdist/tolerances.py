@@ -19,12 +19,24 @@ class Tolerances:
     Attributes
     ----------
     eps_abs, eps_rel, eps_rel_dual : float
-        ADMM stopping test (SPEC section 4 with separate relative tolerances): stop when
+        ADMM residual test (SPEC section 4 with separate relative tolerances):
         r < sqrt(3m) eps_abs sqrt(A) + eps_rel max(|G u|, |z|) and
         s < sqrt(n) eps_abs A + eps_rel_dual |D y| (norms weighted by the areas).
-        The defaults (purely relative, tight on the primal, loose on the dual residual)
-        keep the distance within 0.5% of the exact minimizer on the meshes we measured,
-        where the authors' (5e-6, 1e-2, 1e-2) reached 1.9% on the bent pipe.
+    eps_change, change_window : float, int
+        Change test: every change_window iterations, u_k is compared with the u of
+        change_window iterations before; a column stops once its residual test holds and
+        the last comparison gave max |u_k - u_(k - change_window)| <= eps_change max |u_k|
+        (math.inf: no change test).
+        The residuals alone do not tell when the error is small: the previous rule (eps_rel
+        2.5e-4, eps_rel_dual 0.15, no change test, penalty doubling every 30 iterations up
+        to 8) stopped spot at iteration 179, within 0.5% of the exact minimizer from
+        iteration 97; with the faster schedule below its residual test stopped decimated
+        meshes up to 2% away. With these
+        defaults and the penalty schedule below: spot, bent pipe and cat stop after 90, 87
+        and 90 iterations (previously 179, 219, 167), 0.21-0.39% from Clarabel's exact
+        minimizer; 25 of 26 cases on decimated, bumpy and obtuse meshes of 136-162 vertices
+        (alpha_hat 0-0.3, one and two sources, the boundary) within 0.48%, the decimated spot
+        with holes at alpha_hat 0 at 1.13% (README, benchmarks/stopping.py).
     max_iterations : int
         ADMM iteration cap.
     relaxation : float
@@ -34,7 +46,10 @@ class Tolerances:
         rho_k = L min(rho_max, rho0 2^((k - 1) / rho_doubling)) at iteration k = 1, 2, ...
         A changing penalty costs nothing here (the Dirichlet u-step matrix (alpha + rho) W_D
         is only rescaled), and this fixed schedule converged faster and more reliably
-        than residual balancing.
+        than residual balancing. Doubling every 10 iterations up to 4 reaches 0.5% of the
+        exact minimizer after 45-78 iterations on spot, the bent pipe and cat, where
+        doubling every 30 iterations up to 8 needed 77-114; growing faster or further
+        slowed the 150-vertex meshes at small alpha_hat.
     cg_fraction, cg_rtol : float
         Each u-step is solved inexactly by warm-started PCG, until its residual is below
         min(cg_fraction |D y|, eps_dual / 10) (|D y| is the scale of the dual residual s),
@@ -47,10 +62,23 @@ class Tolerances:
         that already meets the fixed tolerance leaves u unchanged and r can stall above
         its tolerance: 3 of 8 sources on a 42-vertex sphere with tolerances 10x tighter
         than the defaults, a 12 x 12 grid at alpha_hat 1 (10,000 iterations; 64 with it).
-        At the defaults it changes little elsewhere (spot: 1,034 CG iterations instead of
+        At the previous defaults it changed little elsewhere (spot: 1,034 CG iterations instead of
         1,050, the same 179 ADMM iterations; Hessian +12% CG iterations).
     cg_max_iterations : int
         PCG iteration cap per ADMM iteration.
+    pairs_eps_rel, pairs_eps_rel_consensus, pairs_eps_rel_dual, pairs_rho2_factor, pairs_cg_fraction : float
+        Defaults of the same-named arguments of :func:`warp_regdist.all_pairs` (its residual
+        test, consensus penalty and CG tolerance).
+    pairs_rho0, pairs_rho_max, pairs_rho_doubling : float
+        The all-pairs penalty schedule (as rho0, rho_max, rho_doubling); the single-source
+        schedule slowed it (1,800 iterations instead of 785 to 1% on a decimated cat).
+    pairs_eps_change, pairs_change_window : float, int
+        Change test of :func:`warp_regdist.all_pairs`, every pairs_change_window iterations:
+        with c = max |U_k - U_(k - window)| / max U_k, it holds once c / (1 - c / c_before),
+        the change still to come at the rate of the last two windows, is <= pairs_eps_change
+        (math.inf: no change test). The residual test alone stopped 0.8-3.1% away from the
+        exact minimizer on decimated meshes of 59-162 vertices; with the change test
+        0.12-0.43% (README).
     degenerate_element : float
         An element whose area (volume) is <= this times its longest edge squared (cubed)
         is refused as degenerate.
@@ -62,17 +90,29 @@ class Tolerances:
     """
 
     eps_abs: float = 0.0
-    eps_rel: float = 2.5e-4
-    eps_rel_dual: float = 0.15
+    eps_rel: float = 1e-3
+    eps_rel_dual: float = 0.5
+    eps_change: float = 8e-4
+    change_window: int = 10
     max_iterations: int = 10_000
     relaxation: float = 1.7
     rho0: float = 0.5
-    rho_max: float = 8.0
-    rho_doubling: float = 30.0
+    rho_max: float = 4.0
+    rho_doubling: float = 10.0
     cg_fraction: float = 1e-3
     cg_primal_fraction: float = 0.01
     cg_rtol: float = 1e-10
     cg_max_iterations: int = 500
+    pairs_eps_rel: float = 5e-4
+    pairs_eps_rel_consensus: float = 5e-5
+    pairs_eps_rel_dual: float = 1e-2
+    pairs_rho2_factor: float = 25.0
+    pairs_cg_fraction: float = 1e-3
+    pairs_rho0: float = 0.5
+    pairs_rho_max: float = 8.0
+    pairs_rho_doubling: float = 30.0
+    pairs_eps_change: float = 3e-3
+    pairs_change_window: int = 50
     degenerate_element: float = 1e-12
     max_gradient: float = 1.5
 

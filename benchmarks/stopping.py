@@ -1,0 +1,173 @@
+"""Error at stop of the default stopping rules against exact minimizers on irregular meshes (issue 13).
+
+    python benchmarks/stopping.py                 # single sources and all pairs
+    python benchmarks/stopping.py --single        # single sources only (minutes)
+    python benchmarks/stopping.py --pairs --cache /tmp/stopping   # all pairs (Clarabel: minutes per case)
+
+Measurement set: quadric-decimated cat_rr, spot_rr and spot_rr_holes (fast-simplification,
+the decimator trimesh's ``simplify_quadric_decimation`` uses: obtuse and sliver triangles,
+a boundary for the holes), a bumpy icosphere (vertices moved along their normals by up to
+0.15 of the radius), an ellipsoid 1 x 1 x 2.5 (half of its triangles obtuse); single
+sources also on the full spot_rr, bent_pipe_closed_lr and cat_rr. The exact minimizer of
+each discrete problem (all pairs also on decimations to 60-80 vertices) is solved by cvxpy + Clarabel (tests/reference_solver.py,
+tests/all_pairs_reference.py) and cached in --cache. Each case runs at the package's
+defaults and, in the same process, at the previous defaults (``PREVIOUS``), one thread.
+Error: max over vertices (pairs) of |u - u_exact| in % of max u_exact. Writes
+benchmarks/results/stopping.csv and prints a table.
+"""
+
+import argparse
+import functools
+import importlib.util
+import math
+import os
+import sys
+import time
+import warnings
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+TESTS = os.path.join(HERE, "..", "tests")
+sys.path.insert(0, HERE)
+sys.path.append(TESTS)  # reference_solver, all_pairs_reference (after benchmarks/: both have a meshes.py)
+
+import meshes  # noqa: E402
+import warp_regdist as wrd  # noqa: E402
+from report import markdown_table, write_csv  # noqa: E402
+
+RESULTS = os.path.join(HERE, "results", "stopping.csv")
+PREVIOUS = dict(single=dict(eps_rel=2.5e-4, eps_rel_dual=0.15, rho0=0.5, rho_max=8.0, rho_doubling=30.0,
+                            eps_change=math.inf),
+                pairs=dict(pairs_eps_change=math.inf))
+"""The defaults before issue 13 (eps_change inf: no change test)."""
+
+
+def decimated(name, vertices):
+    """shared mesh ``name`` decimated to about ``vertices`` vertices by fast-simplification."""
+    import fast_simplification
+
+    mesh = meshes.shared_mesh(name)
+    V, F = fast_simplification.simplify(mesh.vertices, mesh.elements, target_reduction=1 - vertices / mesh.n_vertices)
+    return wrd.Mesh(V.astype(np.float64), F.astype(np.int64))
+
+
+@functools.lru_cache(maxsize=1)
+def measurement_set():
+    """(name, mesh) of the irregular meshes of 136-162 vertices."""
+    spec = importlib.util.spec_from_file_location("test_meshes", os.path.join(TESTS, "meshes.py"))
+    test_meshes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(test_meshes)
+    V, F = test_meshes.icosphere(2)
+    return [("cat_rr decimated", decimated("cat_rr", 136)), ("spot_rr decimated", decimated("spot_rr", 150)),
+            ("spot_rr_holes decimated", decimated("spot_rr_holes", 150)),
+            ("bumpy icosphere", wrd.Mesh(test_meshes.perturbed(V, F, 0.15, seed=3), F)),
+            ("ellipsoid", wrd.Mesh(V * np.array([1.0, 1.0, 2.5]), F))]
+
+
+def pairs_set():
+    """The measurement set and smaller decimations (60-80 vertices) for all pairs."""
+    return measurement_set() + [("cat_rr decimated", decimated("cat_rr", 60)), ("cat_rr decimated", decimated("cat_rr", 80)),
+                                ("spot_rr_holes decimated", decimated("spot_rr_holes", 80))]
+
+
+def cached(cache, key, compute):
+    """The array cached under ``key``, else compute() (None when compute is None), saved there."""
+    path = os.path.join(cache, key.replace(" ", "_") + ".npy")
+    if os.path.exists(path):
+        return np.load(path)
+    if compute is None:
+        return None
+    value = compute()
+    os.makedirs(cache, exist_ok=True)
+    np.save(path, value)
+    return value
+
+
+def error_pct(u, exact):
+    return float(100 * np.abs(u - exact).max() / exact.max())
+
+
+def single_cases():
+    out = [(name, mesh, [0], a) for name, mesh in measurement_set() for a in (0.0, 0.03, 0.1, 0.3)]
+    out += [(name, mesh, [5, 77], 0.05) for name, mesh in measurement_set()]
+    holes = measurement_set()[2]
+    out.append((holes[0], holes[1], wrd.boundary_vertices(holes[1]).tolist(), 0.05))
+    for name, source in (("spot_rr", 2272), ("bent_pipe_closed_lr", 4882), ("cat_rr", 0)):
+        mesh = meshes.shared_mesh(name)
+        if mesh is not None:
+            out.append((name, mesh, [source], 0.05))
+    return out
+
+
+def run_single(cache):
+    import reference_solver as rs
+
+    rows = []
+    for name, mesh, sources, alpha_hat in single_cases():
+        label = "boundary" if len(sources) > 2 else ",".join(map(str, sources))
+        V, F = mesh.vertices, mesh.elements
+        exact = cached(cache, f"single {name} {mesh.n_vertices} {label} {alpha_hat}",
+                       lambda: rs.solve_reference(V, F, sources, alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum())))
+        solver = wrd.DistanceSolver(mesh, alpha_hat, device="cpu", workers=1)
+        row = dict(solver="single", mesh=name, n=mesh.n_vertices, sources=label, alpha_hat=alpha_hat)
+        for tag, settings in (("", {}), ("previous_", PREVIOUS["single"])):
+            with wrd.tolerances.override(**settings):
+                res = solver.solve(sources)
+            row.update({f"{tag}iterations": int(res.iterations), f"{tag}error_pct": error_pct(res.distance, exact),
+                        f"{tag}seconds": res.seconds})
+        rows.append(row)
+        print("  " + str(row), file=sys.stderr, flush=True)
+    return rows
+
+
+def run_pairs(cache, alpha_hats, cached_only):
+    import all_pairs_reference as apr
+    import reference_solver as rs
+
+    rows = []
+    for alpha_hat in alpha_hats:
+        for name, mesh in pairs_set():
+            V, F = mesh.vertices, mesh.elements
+            t0 = time.perf_counter()
+            exact = cached(cache, f"pairs {name} {mesh.n_vertices} {alpha_hat}", None if cached_only else (
+                lambda: apr.solve_all_pairs_reference(V, F, alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum()),
+                                                      symmetric=True)))
+            if exact is None:
+                continue
+            row = dict(solver="all_pairs", mesh=name, n=mesh.n_vertices, sources="all", alpha_hat=alpha_hat,
+                       reference_seconds=time.perf_counter() - t0)
+            for tag, settings in (("", {}), ("previous_", PREVIOUS["pairs"])):
+                with warnings.catch_warnings(), wrd.tolerances.override(**settings):
+                    warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+                    res = wrd.all_pairs(mesh, alpha_hat, device="cpu", workers=1)
+                row.update({f"{tag}iterations": int(res.iterations), f"{tag}error_pct": error_pct(res.distance, exact),
+                            f"{tag}seconds": res.seconds, f"{tag}converged": bool(res.converged)})
+            rows.append(row)
+            print("  " + str(row), file=sys.stderr, flush=True)
+    return rows
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--single", action="store_true", help="single sources only")
+    parser.add_argument("--pairs", action="store_true", help="all pairs only")
+    parser.add_argument("--alpha-hats", type=float, nargs="+", default=[0.03, 0.1, 0.3], help="all pairs")
+    parser.add_argument("--cache", default=os.path.join(HERE, "results", "stopping_cache"),
+                        help="folder of the exact minimizers")
+    parser.add_argument("--cached-only", action="store_true",
+                        help="all pairs: skip the cases whose exact minimizer is not in --cache yet")
+    parser.add_argument("--output", default=RESULTS)
+    args = parser.parse_args()
+    both = not (args.single or args.pairs)
+    rows = []
+    if args.single or both:
+        rows += run_single(args.cache)
+    if args.pairs or both:
+        rows += run_pairs(args.cache, args.alpha_hats, args.cached_only)
+    write_csv(rows, args.output)
+    print(markdown_table(rows))
+
+
+if __name__ == "__main__":
+    main()
