@@ -133,12 +133,11 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
 
 
 def _even_splits(weights, parts):
-    """Bounds b_0 = 0 < ... < b_parts = len(weights) cutting ``weights`` into ``parts`` runs of
-    about equal sums (fewer runs when there are fewer items)."""
-    parts = max(1, min(parts, len(weights)))
+    """Bounds b_0 = 0 <= ... <= b_parts = len(weights) cutting ``weights`` into ``parts`` runs of
+    about equal sums (a run may be empty when single items outweigh a share)."""
     cum = np.concatenate([[0.0], np.cumsum(weights)])
     cuts = np.searchsorted(cum, cum[-1] * np.arange(1, parts) / parts)
-    return np.unique(np.concatenate([[0], np.clip(cuts, 1, len(weights) - 1), [len(weights)]])).tolist()
+    return np.concatenate([[0], np.clip(cuts, 0, len(weights)), [len(weights)]]).tolist()
 
 
 class _Setup:
@@ -216,7 +215,8 @@ class _Part:
         self.mask = wp.array(ptr=a["mask_row"].ptr, shape=(n, b1 - b0), strides=(0, a["mask_row"].strides[1]),
                              dtype=V, device=dev)
         self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
-        self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy)
+        # each process launches from one thread, so on the CPU the CG loop can be one captured graph
+        self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
         self.vertex = wp.launch(k.vertex_step, ((n + chunk - 1) // chunk, b1 - b0), device=dev, record_cmd=True,
                                 inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
                                 + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
@@ -227,7 +227,7 @@ class _Part:
                                          arrays["DY_acc"][:, cols], arrays["acc"][:, cols], chunk, m])
         self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
             arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
-            arrays["acc_pairs"], i0, n])
+            arrays["acc_pairs"], i0, n]) if i1 > i0 else None
         self.columns = slice(b0 * W, b1 * W)
 
     def set_penalties(self, stiffness_weight, mass_weight):
@@ -247,23 +247,27 @@ class _Part:
         return it
 
     def consensus_step(self, rho2):
-        self.consensus.set_param_by_name("rho2", self.scalar(rho2))
-        self.consensus.launch()
+        if self.consensus is not None:  # None: this part has no tile rows
+            self.consensus.set_param_by_name("rho2", self.scalar(rho2))
+            self.consensus.launch()
 
 
 class _SymmetricADMM:
     """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
 
-    On the CPU the iteration is split into up to ``workers`` parts (at most one per 10^5
-    pairs), each run by its own process on state in shared memory (a CPU launch runs on one
+    On the CPU the iteration is split into up to ``workers`` parts (by default at most one
+    per 10^6 pairs), each run by its own process on state in shared memory (a CPU launch runs on one
     core): the part in this process and the others in :class:`~warp_regdist.processes.WorkerPool`
     workers meet three times per iteration. Every sum that decides the iteration is made per
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
-    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers):
+    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers, auto_workers=False):
         n = mesh.n_vertices
-        parts = 1 if device.is_cuda or not processes_available() else max(1, min(workers, n * n // 100_000))
+        nb = -(-n // lane_width(SCALARS[dtype], n))
+        parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
+        if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
+            parts = max(1, min(parts, n * n // 1_000_000))
         self.setup = setup = _Setup(mesh, alpha_hat, dtype, rho2_factor, parts)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
@@ -380,8 +384,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
         elapsed seconds, memory bytes).
     workers : int or None
-        CPU processes that share every step (None: the cores available to this process;
-        ignored on CUDA and off Linux). The result does not depend on it.
+        CPU processes that share every step (at most one per column block). None: the cores
+        available to this process, at most one per 10^6 pairs (a worker takes a few seconds to
+        start). Ignored on CUDA and off Linux. The result does not depend on it.
     checkpoint : str or os.PathLike or None
         File (.npz) to which the whole state (iterates, duals, penalties, iteration count,
         residual history and the problem's fingerprint: mesh hash, alpha_hat, dtype,
@@ -421,6 +426,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         if not (name == "eps_change" and value == math.inf):  # inf: no change test
             check_weight(value, name, positive=True)
     eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor, cg_fraction, eps_change = settings.values()
+    auto_workers = workers is None
     workers = parse_workers(workers)
     if progress is not None and not callable(progress):
         raise ValueError(f"expected progress as a callable or None, got {progress!r}")
@@ -456,7 +462,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                              + (" (float32 halves it)" if dtype == "float64" else ""))
     memory = device_bytes + host_bytes
 
-    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers)
+    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)
     try:
         run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
                    cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change)

@@ -72,6 +72,10 @@ class DistanceResult(OptimizeResult):
     """
 
 
+_PROCESS_WORK = 100_000
+"""Vertices x source sets from which solve_many starts worker processes by default (spot x 21)."""
+
+
 class DistanceSolver:
     """Precompute once, solve for many source sets (cf. potpourri3d's solver objects).
 
@@ -99,8 +103,9 @@ class DistanceSolver:
         source sets are split into up to ``workers`` independent batches (whole lane blocks),
         one solved in this process and the others in worker processes that build their own
         copy of the solver at the first such call and are kept for the next ones (see
-        :meth:`close`). None: the cores available to the process. Ignored on CUDA (one batch
-        fills the GPU) and off Linux. Each column's result does not depend on it.
+        :meth:`close`). None: the cores available to the process, used once a batch has at
+        least 10^5 vertices x source sets (a worker takes a few seconds to start). Ignored on
+        CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it.
 
     Examples
     --------
@@ -119,6 +124,7 @@ class DistanceSolver:
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
+        self._auto_workers = workers is None
         workers = parse_workers(workers)
         self.device = parse_device(device)
         self.workers = 1 if self.device.is_cuda or not processes_available() else workers
@@ -201,8 +207,12 @@ class DistanceSolver:
         k = len(sets)
         W = lane_width(self.scalar, k)
         blocks = -(-k // W)
-        # whole lane blocks per worker, as even as possible
-        bounds = [min(k, W * (blocks * i // min(self.workers, blocks))) for i in range(min(self.workers, blocks) + 1)]
+        # whole lane blocks per worker, as even as possible; by default only for batches whose work
+        # (vertices x columns) outweighs a worker process's start (~3 s, once per solver)
+        parts = min(self.workers, blocks)
+        if self._auto_workers and self._pool is None and self.mesh.n_vertices * k < _PROCESS_WORK:
+            parts = 1
+        bounds = [min(k, W * (blocks * i // parts)) for i in range(parts + 1)]
         groups = [sets[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
         workspace = self._workspace(W, -(-len(groups[0]) // W))
         with interrupt.catch_interrupt():
@@ -276,8 +286,9 @@ class DistanceSolver:
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
+                # solve_many parallelizes with processes: on the CPU the CG loop can be one captured graph
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
-                               self.scalar, W, nb, dev, preconditioner=self._hierarchy),
+                               self.scalar, W, nb, dev, preconditioner=self._hierarchy, capture=dev.is_cpu),
             )
             self._workspaces[key] = ws
         return self._workspaces[key]
