@@ -31,9 +31,9 @@ def _error(u, exact):
 
 
 @pytest.mark.parametrize("alpha_hat", [0.03, 0.1])
-def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat):
+def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
     mesh, refs = cat80
-    res = wrd.all_pairs(mesh, alpha_hat, device="cpu")
+    res = wrd.all_pairs(mesh, alpha_hat, device=device)
     assert res.converged and res.change <= wrd.tolerances.pairs_eps_change
     assert _error(res.distance, refs[alpha_hat]) <= 5e-3
 
@@ -48,19 +48,19 @@ def test_all_pairs_reads_its_settings_from_tolerances(cat80):
     assert res.iterations == 3 and res.change == np.inf
 
 
-def test_spot_single_source_in_100_iterations_within_half_a_percent():
+def test_spot_single_source_in_100_iterations_within_half_a_percent(device):
     mesh = wrd.load_mesh(os.path.join(os.path.dirname(wrd.__file__), "data", "spot_rr.off"))
     exact = np.loadtxt(DATA / "spot_rr__2272__a0.05_exact.txt")
-    res = wrd.DistanceSolver(mesh, 0.05, device="cpu").solve([2272])
+    res = wrd.DistanceSolver(mesh, 0.05, device=device).solve([2272])
     assert res.converged and res.iterations <= 100, res.iterations
     assert _error(res.distance, exact) <= 5e-3
 
 
 @pytest.mark.parametrize("alpha_hat", [0.0, 0.03, 0.3])
-def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat):
+def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
     mesh, _ = cat80
     V, F = mesh.vertices, mesh.elements
     exact = rs.solve_reference(V, F, [0], alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum()))
-    res = wrd.DistanceSolver(mesh, alpha_hat, device="cpu").solve([0])
+    res = wrd.DistanceSolver(mesh, alpha_hat, device=device).solve([0])
     assert res.converged
     assert _error(res.distance, exact) <= 5e-3
