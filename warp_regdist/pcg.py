@@ -276,4 +276,5 @@ class BatchedPCG:
         it = int(self.counters.numpy()[ITERATION])
         rr = self.acc.numpy().reshape(3, 3, -1)[it % 3, RR, :lanes].astype(np.float64)
         bb = self.bb.numpy().reshape(-1)[:lanes].astype(np.float64)
-        return it, np.sqrt(np.divide(rr, bb, out=np.zeros_like(bb), where=bb > 0))
+        with np.errstate(invalid="ignore", over="ignore"):  # a blown-up iterate (inf / inf) reports NaN
+            return it, np.sqrt(np.divide(rr, bb, out=np.zeros_like(bb), where=bb > 0))

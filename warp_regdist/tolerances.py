@@ -19,7 +19,7 @@ class Tolerances:
     Attributes
     ----------
     eps_abs, eps_rel, eps_rel_dual : float
-        ADMM residual test (SPEC section 4 with separate relative tolerances):
+        ADMM residual test (docs/method.md section 8: section 4's test with separate relative tolerances):
         r < sqrt(3m) eps_abs sqrt(A) + eps_rel max(|G u|, |z|) and
         s < sqrt(n) eps_abs A + eps_rel_dual |D y| (norms weighted by the areas).
     eps_change, change_window : float, int
