@@ -6,9 +6,12 @@
 
 Every case streams ``wrd.distance_matrix(..., out=<tmp>.npy)`` (symmetrized, alpha_hat 0.05,
 float64, random sources with seed 0) in its own process and reports the wall time of the
-call (worker start-up excluded, each worker's solver set-up included), the peak memory of
-every worker process (ru_maxrss, read in the workers) and of the calling process, and the
-largest difference from the first case's matrix on the same mesh. ``--max-iterations`` caps the
+call (worker start-up excluded, each worker's solver set-up included), the CPU time of the
+busiest worker and of all workers during the call (on a shared machine the wall time depends
+on the other load; total CPU time of one worker / CPU time of the busiest of N estimates the
+speed-up on an idle machine), the peak memory of every worker process (ru_maxrss, read in the
+workers) and of the calling process, and the largest difference from the first case's matrix
+on the same mesh. ``--max-iterations`` caps the
 ADMM iterations (in the workers too): a memory probe, since the memory of a block is allocated
 before its first iteration. Prints a markdown table and
 writes benchmarks/results/dask_matrix.csv. Needs ``pip install -e '.[distributed]'``.
@@ -51,25 +54,30 @@ def _cap_iterations(cap):
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
 
 
+def _cpu_seconds():
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _max_rss_gb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
 
 
 def run_case(spec):
-    """spec = MESH:ENGINE:WORKERS:CHUNK:SOURCES:CAP:FOLDER, ENGINE 'cluster' (LocalCluster processes) or 'local',
-    CAP the ADMM iteration cap (0: the default)."""
+    """spec = MESH:ENGINE:WORKERS:CHUNK:SOURCES:CAP:RUN:FOLDER, ENGINE 'cluster' (LocalCluster processes) or
+    'local', CAP the ADMM iteration cap (0: the default), RUN the index of the run (a fresh output each)."""
     import warp as wp
 
     import warp_regdist as wrd
 
-    name, engine, workers, chunk, k, cap, keep = spec.split(":", 6)
+    name, engine, workers, chunk, k, cap, run, keep = spec.split(":", 7)
     case, workers, chunk, k, cap = f"{name}:{engine}:{workers}", int(workers), int(chunk), int(k), int(cap)
     if cap:
         _cap_iterations(cap)
     wp.config.quiet = True
     mesh = load(name)
     sources = np.random.default_rng(0).choice(mesh.n_vertices, k, replace=False)
-    out = os.path.join(keep, f"{case.replace(':', '_')}.npy")
+    out = os.path.join(keep, f"{case.replace(':', '_')}_{run}.npy")
     row = dict(mesh=name, n=mesh.n_vertices, sources=k, chunk=chunk, engine=engine, workers=workers,
                iteration_cap=cap or "default")
     kwargs = dict(sources=sources, chunk=chunk, out=out)
@@ -80,10 +88,14 @@ def run_case(spec):
                 Client(cluster) as client:
             if cap:
                 client.run(_cap_iterations, cap)
+            cpu = client.run(_cpu_seconds)
             t0 = time.perf_counter()
             wrd.distance_matrix(mesh, 0.05, client=client, **kwargs)
             row["seconds"] = round(time.perf_counter() - t0, 2)
+            cpu = {w: c - cpu[w] for w, c in client.run(_cpu_seconds).items()}
             rss = client.run(_max_rss_gb)
+        row["worker_cpu_s"] = round(max(cpu.values()), 2)
+        row["total_worker_cpu_s"] = round(sum(cpu.values()), 2)
         row["peak_worker_rss_gb"] = round(max(rss.values()), 3)
     else:
         t0 = time.perf_counter()
@@ -114,8 +126,8 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         keep = args.keep or tmp
         rows, first = [], {}
-        for case in cases:
-            row = run_child(__file__, f"{case}:{args.chunk}:{args.sources}:{args.max_iterations}:{keep}")
+        for run, case in enumerate(cases):
+            row = run_child(__file__, f"{case}:{args.chunk}:{args.sources}:{args.max_iterations}:{run}:{keep}")
             if row is None:
                 continue
             D = np.load(row.pop("matrix"), mmap_mode="r")
