@@ -185,10 +185,16 @@ def test_refuses_another_problem_and_bad_input(mesh, tmp_path, client):
         wrd.distance_matrix(mesh, sources=SOURCES, client=client, progress=print)
 
 
-def test_cli_matrix_on_a_scheduler_and_resumed(mesh, rows, client, tmp_path, capsys):
-    path = tmp_path / "sphere.off"
+@pytest.fixture(scope="module")
+def mesh_file(mesh, tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "sphere.off"
     path.write_text("OFF\n162 320 0\n" + "".join(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in mesh.vertices)
                     + "".join(f"3 {a} {b} {c}\n" for a, b, c in mesh.elements))
+    return path
+
+
+def test_cli_matrix_on_a_scheduler_and_resumed(mesh_file, rows, client, tmp_path, capsys):
+    path = mesh_file
     landmarks = tmp_path / "landmarks.txt"
     landmarks.write_text(" ".join(map(str, SOURCES[:5])) + "\n" + ",".join(map(str, SOURCES[5:])) + "\n")
     out = str(tmp_path / "D.zarr")
@@ -221,3 +227,15 @@ def test_cli_matrix_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("warp-regdist: error: ") and len(err.strip().splitlines()) == 1
         assert re.search(message, err), err
+
+
+def test_cli_matrix_reports_unconverged_blocks(mesh_file, tmp_path, capsys):
+    with wrd.tolerances.override(max_iterations=5):
+        assert main(["matrix", str(mesh_file), "--output", str(tmp_path / "D.npy"), "--chunk", "100", "--quiet"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert all(line.startswith("warp-regdist: warning: ADMM ") for line in err)
+    unconverged = [line for line in err if "did not converge" in line]
+    assert len(unconverged) == 2  # one line per block, of 100 and 62 rows
+    for line, rows in zip(unconverged, (100, 62)):
+        assert re.fullmatch(rf"warp-regdist: warning: ADMM did not converge in 5 iterations for \d+ of {rows} "
+                            "source sets", line), line

@@ -511,8 +511,7 @@ def _matrix(args: argparse.Namespace) -> None:
     sources = _matrix_sources(args.sources)
     wp.config.log_level = wp.LOG_WARNING
     progress, state = _matrix_progress(args.quiet)
-    with contextlib.ExitStack() as stack, warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with contextlib.ExitStack() as stack, _warnings_to_stderr():
         client = _dask_client(args, stack)
         try:
             D = distance_matrix(mesh, args.alpha_hat, sources=sources, symmetrize=args.symmetrize,
@@ -525,8 +524,6 @@ def _matrix(args: argparse.Namespace) -> None:
             print(f"{PROG}: interrupted; the blocks written so far stay in {args.output}: run the same command "
                   "again to resume", file=sys.stderr)
             raise SystemExit(130) from None
-    for message in dict.fromkeys(str(w.message) for w in caught):
-        _warn(message)
     if not args.quiet:
         where = "here" if client is None else f"on a Dask cluster ({args.scheduler or f'{args.workers} workers'})"
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. Distance matrix of {D.shape[0]} "
