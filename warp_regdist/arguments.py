@@ -13,7 +13,7 @@ import tempfile
 import numpy as np
 import warp as wp
 
-__all__ = ["check_weight", "parse_device", "parse_workers"]
+__all__ = ["check_weight", "parse_device", "parse_workers", "read_csv_rows"]
 
 _CUDA_DRIVER_WARNING = b"Could not find or load the NVIDIA CUDA driver"
 """Printed by Warp's native start-up on every machine without an NVIDIA driver."""
@@ -90,3 +90,21 @@ def _init_warp(keep_cuda_warning):
                         if _CUDA_DRIVER_WARNING not in line)
     if kept:
         os.write(2, kept)
+
+
+def read_csv_rows(path, row, what):
+    """(k, len(row)) float64 rows of the CSV file ``path`` ('#' starts a comment), as in
+    "expected {what} rows '{row}' of numbers, got unreadable rows in ..." on failure; ``row``
+    names the columns ("x,y,z"), ``what`` the input ("--sources", "CSV")."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
+            rows = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except ValueError:
+        raise ValueError(f"expected {what} rows '{row}' of numbers, got unreadable rows in {path!r}") from None
+    width = len(row.split(","))
+    if rows.size == 0 or rows.shape[1] != width:
+        raise ValueError(f"expected {what} rows '{row}', got {rows.shape[1] if rows.size else 0} columns in {path!r}")
+    return rows

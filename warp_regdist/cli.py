@@ -576,15 +576,9 @@ def _read_points(path: str) -> np.ndarray:
         raise ValueError(f"expected --sources 'boundary' or a .csv file of 'x,y,z' rows, got {path!r}")
     if not os.path.isfile(path):
         raise ValueError(f"expected --sources as an existing .csv file of 'x,y,z' rows, got {path!r} (no such file)")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
-            points = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
-    except ValueError:
-        raise ValueError(f"expected --sources rows 'x,y,z' of numbers, got unreadable rows in {path!r}") from None
-    if points.size == 0 or points.shape[1] != 3:
-        raise ValueError(f"expected --sources rows 'x,y,z', got {points.shape[1] if points.size else 0} "
-                         f"columns in {path!r}")
+    from .arguments import read_csv_rows
+
+    points = read_csv_rows(path, "x,y,z", "--sources")
     if not np.isfinite(points).all():
         raise ValueError(f"expected finite --sources coordinates, got NaN or inf in {path!r}")
     return points

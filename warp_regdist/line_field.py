@@ -24,13 +24,13 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
+from .arguments import read_csv_rows
 from .mesh import Mesh
 
 __all__ = ["line_field", "read_directions"]
@@ -183,15 +183,7 @@ def read_directions(path, mesh):
         except ValueError:
             raise ValueError(f"expected a numeric .npy array of shape (elements, 3), got an unreadable file "
                              f"{path!r}") from None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an empty file: numpy warns, then the size check refuses it
-            rows = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
-    except ValueError:
-        raise ValueError(f"expected CSV rows 'face,dx,dy,dz' of numbers, got unreadable rows in {path!r}") from None
-    if rows.size == 0 or rows.shape[1] != 4:
-        raise ValueError(f"expected CSV rows 'face,dx,dy,dz', got {rows.shape[1] if rows.size else 0} columns "
-                         f"in {path!r}")
+    rows = read_csv_rows(path, "face,dx,dy,dz", "CSV")
     fractional = rows[:, 0] != np.round(rows[:, 0])
     if fractional.any():
         raise ValueError(f"expected integer face indices in the first column, got {rows[fractional, 0][0]:g} "

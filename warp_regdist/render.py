@@ -282,7 +282,7 @@ def render_distance(
     buffer = _depth_buffer(figsize, rects, limits, polygons, codes)
 
     fig = Figure(figsize=figsize, dpi=_DPI)
-    canvas = FigureCanvasAgg(fig)
+    FigureCanvasAgg(fig)  # attaches the Agg canvas that savefig draws with
     fig.patch.set_facecolor("white")
     for rect, (xlim, ylim), poly, col, rot, (zlo, zhi) in zip(
         rects, limits, polygons, colors, rotations, depth_range

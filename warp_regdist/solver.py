@@ -30,8 +30,6 @@ from scipy.optimize import OptimizeResult, OptimizeWarning
 
 from .kernels.admm import DY2, GU2, R2, S2, Z2, admm_kernels
 from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width
-from .kernels.multigrid import multigrid_kernels
-from .kernels.pcg import pcg_kernels
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
