@@ -25,7 +25,8 @@ import warp_regdist as wrd
 from warp_regdist.cli import main
 from warp_regdist.export import save_vtu
 from warp_regdist.operators import build_operators
-from warp_regdist.render import plane_section, render_cut
+from warp_regdist.contours import plane_section
+from warp_regdist.render import render_cut
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
