@@ -1,7 +1,7 @@
 """Single-source benchmark: this package vs the same ADMM with a direct factorization (scipy).
 
     python benchmarks/single_source.py                # spot, pipe, 100k sphere, 64-source batch
-    python benchmarks/single_source.py --large        # also the 1M-vertex sphere
+    python benchmarks/single_source.py --large        # also the 655k icosphere and the 1M-vertex sphere
     python benchmarks/single_source.py --quick        # spot and pipe only, 8-source batch
 
 Prints a markdown table and writes benchmarks/results/single_source.csv. Each case runs in
@@ -28,6 +28,7 @@ CASES = {  # name: (mesh, source, alpha_hat, repeats)
     "spot_rr": ("spot_rr", 2272, 0.05, 5),
     "bent_pipe_closed_lr": ("bent_pipe_closed_lr", 4882, 0.05, 5),
     "sphere_100k": ("cube_sphere:129", 0, 0.05, 2),
+    "icosphere_655k": ("icosphere:8", 0, 0.05, 1),
     "sphere_1M": ("cube_sphere:408", 0, 0.05, 1),
 }
 
@@ -36,6 +37,11 @@ def load(spec):
     import meshes
     if spec.startswith("cube_sphere:"):
         return meshes.cube_sphere(int(spec.split(":")[1]))
+    if spec.startswith("icosphere:"):
+        import trimesh
+        import warp_regdist as wrd
+        s = trimesh.creation.icosphere(subdivisions=int(spec.split(":")[1]))
+        return wrd.Mesh(np.asarray(s.vertices), np.asarray(s.faces))
     return meshes.shared_mesh(spec)
 
 
@@ -121,14 +127,14 @@ def main():
     args = ap.parse_args()
     if args.case:  # child process
         row = run_batch(int(args.case.split("_")[1])) if args.case.startswith("batch_") else \
-            run_case(args.case, baseline=args.case != "sphere_1M")
+            run_case(args.case, baseline=args.case not in ("sphere_1M", "icosphere_655k"))
         print_result(row)
         return
     names = ["spot_rr", "bent_pipe_closed_lr"]
     if not args.quick:
         names.append("sphere_100k")
     if args.large:
-        names.append("sphere_1M")
+        names += ["icosphere_655k", "sphere_1M"]
     names.append("batch_8" if args.quick else "batch_64")
     rows = []
     for name in names:

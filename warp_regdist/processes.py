@@ -164,10 +164,6 @@ class WorkerPool:
         """The results of the calls sent by :meth:`start`, one per worker."""
         return [self._receive(i) for i in range(len(self._conns))]
 
-    def call(self, method, calls):
-        self.start(method, calls)
-        return self.finish()
-
     def request_stop(self, value=True):
         """Raise (or clear) the stop flag that the workers' solvers poll once per iteration."""
         self.stop_flag["stop"][0] = 1 if value else 0

@@ -135,7 +135,7 @@ def solve_rows(solver, sources):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         res = solver.solve_many([[s] for s in sources])
-    if res.get("interrupted", False):
+    if res.interrupted:
         raise KeyboardInterrupt
     rows = res.distance.T.astype(solver.dtype)
     for w in caught:
