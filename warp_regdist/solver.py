@@ -68,6 +68,11 @@ class DistanceResult(OptimizeResult):
     interrupted : bool
         True when Ctrl-C stopped the solve: the columns not yet converged hold their current
         iterate and ``converged`` False.
+    duals : (m, 3) or (m, 3, k) ndarray of float64
+        The per-element multipliers y of the gradient constraint at the returned iterate (always
+        from :meth:`DistanceSolver.solve`, from :meth:`~DistanceSolver.solve_many` with
+        ``keep_duals=True``); with ``penalty`` (rho / L, float or (k,)) they make the result a
+        warm start (``initial=``).
     """
 
 
@@ -183,25 +188,63 @@ class DistanceSolver:
         return np.unique(arr), reachable
 
     # ------------------------------------------------------------------ public API
-    def solve(self, sources, verbose=False):
-        """Distance from one source set (iterable of vertex indices); see :class:`DistanceResult`."""
-        res = self._solve_many([sources], verbose)
-        for key in ("iterations", "converged", "primal_residual", "dual_residual"):
+    def _initial_state(self, initial, k):
+        """Warm start ``initial`` (a DistanceResult of this mesh with k columns) as
+        (u (n, k), y (m, 3, k) or None, penalty (k,) or None); None stays None."""
+        if initial is None:
+            return None
+        n, m = self.mesh.n_vertices, self.mesh.n_elements
+        if not isinstance(initial, DistanceResult):
+            raise ValueError(f"expected initial as a DistanceResult of solve or solve_many, got {type(initial).__name__}")
+        u = np.asarray(initial.distance, dtype=np.float64)
+        u = u[:, None] if u.ndim == 1 else u
+        if u.shape != (n, k):
+            raise ValueError(f"expected initial with a distance of shape ({n}, {k}) (this mesh, one column per "
+                             f"source set), got shape {np.shape(initial.distance)}")
+        if np.isnan(u).any():
+            raise ValueError(f"expected initial distances without NaN, got {np.count_nonzero(np.isnan(u))} NaN")
+        if "duals" not in initial:
+            return u, None, None
+        y = np.asarray(initial.duals, dtype=np.float64)
+        y = y[:, :, None] if y.ndim == 2 else y
+        penalty = np.asarray(initial.get("penalty", np.nan), dtype=np.float64)
+        if y.shape != (m, 3, k):
+            raise ValueError(f"expected initial duals of shape ({m}, 3, {k}), got shape {np.shape(initial.duals)}")
+        if penalty.shape not in ((), (k,)) or not (np.isfinite(y).all() and (penalty > 0).all()):
+            raise ValueError(f"expected initial duals finite and penalty > 0 (scalar or ({k},)), got penalty "
+                             f"{penalty!r} and {np.count_nonzero(~np.isfinite(y))} non-finite duals")
+        return u, y, np.broadcast_to(penalty, (k,))
+
+    def solve(self, sources, verbose=False, initial=None):
+        """Distance from one source set (iterable of vertex indices); see :class:`DistanceResult`.
+
+        ``initial``: a result of an earlier :meth:`solve` on this mesh (other sources or another
+        solver's alpha_hat) to start from: its distance, duals and penalty. The answer is this
+        problem's minimizer; only the iterations needed change.
+        """
+        res = self._solve_many([sources], verbose, initial, keep_duals=True)
+        for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty"):
             res[key] = res[key][0].item()
         res["distance"] = res["distance"][:, 0]
+        res["duals"] = res["duals"][:, :, 0]
         return res
 
-    def solve_many(self, source_sets, verbose=False):
-        """Distances from k source sets as one batched ADMM: ``distance`` is (n, k)."""
-        return self._solve_many(source_sets, verbose)
+    def solve_many(self, source_sets, verbose=False, initial=None, keep_duals=False):
+        """Distances from k source sets as one batched ADMM: ``distance`` is (n, k).
 
-    def _solve_many(self, source_sets, verbose):
+        ``initial``: a result with k columns to start from (see :meth:`solve`); ``keep_duals``:
+        return ``duals`` (m, 3, k) too, which makes the result a full warm start.
+        """
+        return self._solve_many(source_sets, verbose, initial, keep_duals)
+
+    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False):
         """The work of :meth:`solve_many`; its warnings name the caller of solve / solve_many."""
         if isinstance(source_sets, (str, bytes)) or not hasattr(source_sets, "__iter__"):
             raise ValueError(f"expected a list of source sets, got {source_sets!r}")
         sets = [self._source_mask(s, j) for j, s in enumerate(source_sets)]
         if not sets:
             raise ValueError("expected at least one source set, got none")
+        start = self._initial_state(initial, len(sets))
         t0 = time.perf_counter()
         k = len(sets)
         W = lane_width(self.scalar, k)
@@ -213,21 +256,23 @@ class DistanceSolver:
             parts = 1
         bounds = [min(k, W * (blocks * i // parts)) for i in range(parts + 1)]
         groups = [sets[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        starts = [None if start is None else tuple(None if x is None else x[..., a:b] for x in start)
+                  for a, b in zip(bounds[:-1], bounds[1:])]
         workspace = self._workspace(W, -(-len(groups[0]) // W))
         with interrupt.catch_interrupt():
             if len(groups) == 1:
-                parts = [self._admm(groups[0], workspace, verbose)]
+                parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals)]
             else:
                 pool = self._worker_pool(len(groups) - 1)
                 settings = dataclasses.asdict(tolerances)
-                pool.start("solve", [(g, W, settings) for g in groups[1:]])
+                pool.start("solve", [(g, W, settings, st, keep_duals) for g, st in zip(groups[1:], starts[1:])])
                 try:
-                    parts = [self._admm(groups[0], workspace, verbose)]
+                    parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals)]
                 finally:
                     parts += pool.finish()
+        keys = ("distance", "iterations", "converged", "primal_residual", "dual_residual", "penalty")
         res = DistanceResult(
-            {key: np.concatenate([p[key] for p in parts], axis=-1)
-             for key in ("distance", "iterations", "converged", "primal_residual", "dual_residual")},
+            {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
         gradient = self._max_gradient(res.distance)
@@ -292,8 +337,9 @@ class DistanceSolver:
             self._workspaces[key] = ws
         return self._workspaces[key]
 
-    def _admm(self, sets, ws, verbose):
-        """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks)."""
+    def _admm(self, sets, ws, verbose, start=None, keep_duals=False):
+        """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks), from
+        zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None)."""
         t0 = time.perf_counter()
         tol = tolerances
         factor = self.regularizer.tolerance_factor
@@ -319,7 +365,20 @@ class DistanceSolver:
         L = self.operators.length_scale
         A = self.operators.total_volume
         rho0, rho_max = (f * t for f, t in zip(self.regularizer.rho_factors, (tol.rho0, tol.rho_max)))
-        rho = rho0 * L
+        # the schedule rho_k = L min(rho_max, rho0 2^((k + offset) / rho_doubling)); a warm start
+        # continues it from the penalty it carries
+        offset = 0.0
+        snapshot = np.zeros((n, nb * W))
+        if start is not None:
+            u0, y0, penalty = start
+            u0 = np.where(np.isfinite(u0), u0, 0.0) * free[:, :k]
+            snapshot[:, :k] = u0
+            ws["u"].assign(_lanes(u0, nb, W))
+            if y0 is not None:
+                ws["y"].assign(_lanes(y0, nb, W))
+                ws["z"].assign(_lanes(self._project_gradient(u0), nb, W))
+                offset = max(0.0, tol.rho_doubling * math.log2(float(np.median(penalty)) / rho0))
+        rho = L * min(rho_max, rho0 * 2.0 ** (offset / tol.rho_doubling))
         ws["rho"].assign(np.full((nb, W), rho))
 
         eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
@@ -334,12 +393,12 @@ class DistanceSolver:
         eps_dual_abs, load_norm = slot_values
         # change test (tolerances.eps_change): per slot, u at the last test and whether that test held
         window, eps_change = tol.change_window, factor * tol.eps_change
-        snapshot = np.zeros((n, nb * W))
         settled = np.zeros((1, nb * W), dtype=bool)
 
         iterations = np.full(k, -1)
         out = np.zeros((n, k))
-        r_out, s_out = np.zeros(k), np.zeros(k)
+        y_out = np.zeros((m, 3, k)) if keep_duals else None
+        r_out, s_out, rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
         live = nb * W
         r = s = np.zeros(live)
         eps_dual, dual_scale = eps_dual_abs + eps_rel_dual * load_norm, eps_dual_abs + load_norm
@@ -369,8 +428,8 @@ class DistanceSolver:
                 if new.size:  # freeze each column at the iterate that met its stopping test
                     cols = slot_col[new]
                     iterations[cols] = it
-                    out[:, cols] = ws["u"].numpy().reshape(n, -1)[:, new]
-                    r_out[cols], s_out[cols] = r[new], s[new]
+                    self._freeze(ws, new, cols, out, y_out)
+                    r_out[cols], s_out[cols], rho_out[cols] = r[new], s[new], rho / L
                     slot_col[new] = -1
                 if verbose and (time.perf_counter() - last_print > 2.0):
                     last_print = time.perf_counter()
@@ -383,7 +442,7 @@ class DistanceSolver:
                     per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
                     live = batch.compact(slot_col, slot_values, per_slot, snapshot, settled)
                     r, s, eps_dual, dual_scale = per_slot[:, :live]
-                rho = L * min(rho_max, rho0 * 2.0 ** (it / tol.rho_doubling))
+                rho = L * min(rho_max, rho0 * 2.0 ** ((it + offset) / tol.rho_doubling))
                 ws["rho"].assign(np.full((nb, W), rho))
             if not self._scaled and rho != system_rho:
                 system_rho = rho
@@ -402,17 +461,33 @@ class DistanceSolver:
         late = np.flatnonzero(slot_col[:live] >= 0)
         if late.size:
             cols = slot_col[late]
-            out[:, cols] = ws["u"].numpy().reshape(n, -1)[:, late]
-            r_out[cols], s_out[cols] = r[late], s[late]
+            self._freeze(ws, late, cols, out, y_out)
+            r_out[cols], s_out[cols], rho_out[cols] = r[late], s[late], rho / L
         u = out
         for j, (src, reach) in enumerate(sets):
             u[~reach, j] = np.inf
             u[src, j] = 0.0
         converged = iterations >= 0
-        return DistanceResult(
+        res = DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
-            primal_residual=r_out, dual_residual=s_out, cg_iterations=cg_total, seconds=time.perf_counter() - t0,
+            primal_residual=r_out, dual_residual=s_out, penalty=rho_out, cg_iterations=cg_total,
+            seconds=time.perf_counter() - t0,
             interrupted=bool(not converged.all() and it < tol.max_iterations and interrupt.requested()))
+        if keep_duals:
+            res["duals"] = y_out
+        return res
+
+    @staticmethod
+    def _freeze(ws, slots, cols, out, y_out):
+        """Copy the iterate u (and y when ``y_out`` is given) of ``slots`` into columns ``cols``."""
+        out[:, cols] = ws["u"].numpy().reshape(out.shape[0], -1)[:, slots]
+        if y_out is not None:
+            y_out[:, :, cols] = ws["y"].numpy().reshape(y_out.shape[0], 3, -1)[:, :, slots]
+
+    def _project_gradient(self, u):
+        """z = Proj_{|.|<=1}(G u) per element and column: (n, k) -> (m, 3, k)."""
+        g = (self.operators.grad @ u).reshape(self.mesh.n_elements, 3, -1)
+        return g / np.maximum(1.0, np.sqrt(np.square(g).sum(axis=1, keepdims=True)))
 
 
 class _SolverCopy:
@@ -421,10 +496,17 @@ class _SolverCopy:
     def __init__(self, arguments, index):
         self.solver = DistanceSolver(device="cpu", workers=1, **arguments)
 
-    def solve(self, sets, W, settings):
+    def solve(self, sets, W, settings, start, keep_duals):
         """The batched ADMM of ``sets`` at lane width W under the caller's ``tolerances`` settings."""
         with tolerances.override(**settings):
-            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False)
+            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False, start, keep_duals)
+
+
+def _lanes(values, nb, W):
+    """(..., k) host values -> (..., nb, W) lane layout, zero-padded to nb W columns."""
+    padded = np.zeros(values.shape[:-1] + (nb * W,))
+    padded[..., :values.shape[-1]] = values
+    return padded.reshape(values.shape[:-1] + (nb, W))
 
 
 def _max_ratio(a, b):
