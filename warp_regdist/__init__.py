@@ -5,6 +5,7 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 """
 
 from . import metrics
+from .admm import PenaltySchedule
 from .all_pairs_admm import AllPairsResult, all_pairs
 from .export import save_vtu
 from .line_field import line_field
@@ -22,4 +23,4 @@ __version__ = "0.1.0"
 __all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "tetrahedralize", "__version__"]
+           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "__version__"]

@@ -65,6 +65,7 @@ from .operators import build_operators
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 from . import interrupt
+from .admm import ExtrapolatedChangeTest, PenaltySchedule, check_schedule
 from .arguments import check_weight, parse_device, parse_workers
 from .solver import ConvergenceWarning
 from .tolerances import tolerances
@@ -344,7 +345,7 @@ class _SymmetricADMM:
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, eps_rel=None,
               eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, progress=None,
-              workers=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, eps_change=None):
+              workers=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, eps_change=None, schedule=None):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh.
 
     Parameters
@@ -380,6 +381,12 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         no change test, the residual test alone). With the
         defaults the error at stop stayed within 0.5% of the maximal distance from the exact
         minimizer on the irregular meshes we measured (README).
+    schedule : PenaltySchedule or None
+        The gradient penalty rho at iteration k = 0, 1, ...: a :class:`~warp_regdist.PenaltySchedule`
+        or any object with ``rho(k)`` (absolute) and ``offset_for(penalty)``; rho2 follows from
+        ``rho2_factor``. None: ``PenaltySchedule.all_pairs`` of ``tolerances`` (``pairs_rho0``,
+        ``pairs_rho_max``, ``pairs_rho_doubling``, in units of sqrt(A)). A checkpoint does not
+        record it: resume with the same schedule.
     progress : callable or None
         Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
         elapsed seconds, memory bytes).
@@ -426,6 +433,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         if not (name == "eps_change" and value == math.inf):  # inf: no change test
             check_weight(value, name, positive=True)
     eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor, cg_fraction, eps_change = settings.values()
+    if schedule is not None:
+        check_schedule(schedule)
     auto_workers = workers is None
     workers = parse_workers(workers)
     if progress is not None and not callable(progress):
@@ -465,7 +474,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)
     try:
         run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change)
+                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change,
+                   PenaltySchedule.all_pairs(tolerances, state.L) if schedule is None else schedule)
         if saved is not None:
             run.restore(saved)
         return run.iterate(t0)
@@ -533,7 +543,7 @@ class _Run:
     """
 
     def __init__(self, state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                 cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change):
+                 cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change, schedule):
         self.state, self.memory, self.max_iterations = state, memory, max_iterations
         self.eps_rel, self.eps_rel_consensus, self.eps_rel_dual = eps_rel, eps_rel_consensus, eps_rel_dual
         self.rho2_factor, self.cg_fraction, self.progress = rho2_factor, cg_fraction, progress
@@ -544,10 +554,9 @@ class _Run:
         self.cols = self.pairs = None
         self.last_penalties = None
         self.seconds_before = 0.0
-        self.eps_change = eps_change
-        self.snapshot = None  # U at the last change test (lane axis last)
-        self.window_change = math.inf  # max |U - U_before| / max U at the last change test
-        self.change = math.inf  # the change still to come estimated from the last two windows
+        self.schedule = schedule
+        # U as one column: its change test (snapshot, the last window's change, the change to come)
+        self.change_test = ExtrapolatedChangeTest(tolerances.pairs_change_window, eps_change, 1)
 
     def restore(self, saved):
         st = self.state
@@ -562,8 +571,9 @@ class _Run:
         self.cg_total = int(saved["cg_iterations"])
         self.seconds_before = float(saved["seconds"])
         if "change_snapshot" in saved:
-            self.snapshot = saved["change_snapshot"]
-            self.window_change, self.change = (float(x) for x in saved["change"])
+            window_change, change = saved["change"]
+            self.change_test.restore(dict(snapshot=saved["change_snapshot"].reshape(-1, 1),
+                                          window_change=[window_change], change=[change]))
 
     def save(self, it, seconds):
         """Write the state at the top of iteration ``it`` to the checkpoint file, atomically."""
@@ -574,8 +584,10 @@ class _Run:
                     fingerprint=np.array(json.dumps(self.fingerprint)))
         if it > 0:
             data.update(penalties=np.array(self.last_penalties), cols=self.cols, pairs=self.pairs)
-        if self.snapshot is not None:
-            data.update(change_snapshot=self.snapshot, change=np.array([self.window_change, self.change]))
+        change = self.change_test.state()
+        if change["snapshot"] is not None:  # U's lane layout (n, nb, W)
+            data.update(change_snapshot=change["snapshot"].reshape(st.n, st.setup.nb, st.setup.W),
+                        change=np.array([change["window_change"][0], change["change"][0]]))
         path = os.fspath(self.checkpoint)
         tmp = f"{path}.tmp{os.getpid()}"
         try:
@@ -614,7 +626,7 @@ class _Run:
                 if interrupt.requested():
                     interrupted = True
                     break
-                rho = L * min(tol.pairs_rho_max, tol.pairs_rho0 * 2.0 ** (it / tol.pairs_rho_doubling))
+                rho = self.schedule.rho(it)
                 st.set_penalties(rho, self.rho2_factor * rho * rho / (L * A))
                 s2, dy2 = st.right_hand_side()
                 if it > 0:
@@ -635,17 +647,9 @@ class _Run:
                     self.history.append(res / np.maximum(eps, 1e-300))
                     if self.progress is not None:
                         self.progress(it, res, eps, elapsed, self.memory)
-                    if it % tol.pairs_change_window == 0:
-                        U = st.get("U")
-                        if self.snapshot is not None:
-                            c = float(np.abs(U - self.snapshot).max() / max(U.max(), 1e-300))
-                            if c < self.window_change < math.inf:
-                                self.change = c / (1.0 - c / self.window_change)
-                            else:  # U did not move, the first comparison, or a change that grows
-                                self.change = 0.0 if c == 0.0 else math.inf
-                            self.window_change = c
-                        self.snapshot = U
-                    if np.all(res <= eps) and self.change <= self.eps_change:
+                    if self.change_test.due(it):
+                        self.change_test.update(st.get("U").reshape(-1, 1))
+                    if np.all(res <= eps) and self.change_test.settled[0]:
                         converged = True
                         break
                     if it == self.max_iterations:
@@ -660,7 +664,7 @@ class _Run:
                           stacklevel=3)
         return AllPairsResult(distance=st.distance(), iterations=it, converged=converged, interrupted=interrupted,
                               residuals=res, tolerance=eps, history=np.array(self.history).reshape(-1, 7),
-                              change=self.change,
+                              change=float(self.change_test.change[0]),
                               cg_iterations=self.cg_total, seconds=self.seconds_before + time.perf_counter() - t0,
                               memory_bytes=self.memory,
                               checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint))

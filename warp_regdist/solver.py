@@ -37,6 +37,7 @@ from .operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
 from .processes import WorkerPool, processes_available
+from .admm import ChangeTest, PenaltySchedule, check_schedule
 from .arguments import check_weight, parse_device, parse_workers
 from .regularizers import build_regularizer
 from .tolerances import tolerances
@@ -215,32 +216,42 @@ class DistanceSolver:
                              f"{penalty!r} and {np.count_nonzero(~np.isfinite(y))} non-finite duals")
         return u, y, np.broadcast_to(penalty, (k,))
 
-    def solve(self, sources, verbose=False, initial=None):
+    def solve(self, sources, verbose=False, initial=None, schedule=None):
         """Distance from one source set (iterable of vertex indices); see :class:`DistanceResult`.
 
         ``initial``: a result of an earlier :meth:`solve` on this mesh (other sources or another
         solver's alpha_hat) to start from: its distance, duals and penalty. The answer is this
         problem's minimizer; only the iterations needed change.
+
+        ``schedule``: the penalty rho at ADMM iteration k, a :class:`~warp_regdist.PenaltySchedule`
+        or any object with ``rho(k)`` (absolute penalty, k = 0, 1, ...; float k after a warm
+        start) and ``offset_for(penalty)`` (the k at which it reaches a warm start's penalty rho);
+        picklable when worker processes share the batch. None: ``PenaltySchedule.single_source``
+        of ``tolerances`` (rho0, rho_max, rho_doubling, in units of sqrt(A)). The answer is the
+        same minimizer; the iterations needed change.
         """
-        res = self._solve_many([sources], verbose, initial, keep_duals=True)
+        res = self._solve_many([sources], verbose, initial, keep_duals=True, schedule=schedule)
         for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty"):
             res[key] = res[key][0].item()
         res["distance"] = res["distance"][:, 0]
         res["duals"] = res["duals"][:, :, 0]
         return res
 
-    def solve_many(self, source_sets, verbose=False, initial=None, keep_duals=False):
+    def solve_many(self, source_sets, verbose=False, initial=None, keep_duals=False, schedule=None):
         """Distances from k source sets as one batched ADMM: ``distance`` is (n, k).
 
         ``initial``: a result with k columns to start from (see :meth:`solve`); ``keep_duals``:
-        return ``duals`` (m, 3, k) too, which makes the result a full warm start.
+        return ``duals`` (m, 3, k) too, which makes the result a full warm start; ``schedule``:
+        the penalty schedule of every column (see :meth:`solve`).
         """
-        return self._solve_many(source_sets, verbose, initial, keep_duals)
+        return self._solve_many(source_sets, verbose, initial, keep_duals, schedule)
 
-    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False):
+    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False, schedule=None):
         """The work of :meth:`solve_many`; its warnings name the caller of solve / solve_many."""
         if isinstance(source_sets, (str, bytes)) or not hasattr(source_sets, "__iter__"):
             raise ValueError(f"expected a list of source sets, got {source_sets!r}")
+        if schedule is not None:
+            check_schedule(schedule)
         sets = [self._source_mask(s, j) for j, s in enumerate(source_sets)]
         if not sets:
             raise ValueError("expected at least one source set, got none")
@@ -261,13 +272,13 @@ class DistanceSolver:
         workspace = self._workspace(W, -(-len(groups[0]) // W))
         with interrupt.catch_interrupt():
             if len(groups) == 1:
-                parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals)]
+                parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals, schedule)]
             else:
                 pool = self._worker_pool(len(groups) - 1)
                 settings = dataclasses.asdict(tolerances)
-                pool.start("solve", [(g, W, settings, st, keep_duals) for g, st in zip(groups[1:], starts[1:])])
+                pool.start("solve", [(g, W, settings, st, keep_duals, schedule) for g, st in zip(groups[1:], starts[1:])])
                 try:
-                    parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals)]
+                    parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals, schedule)]
                 finally:
                     parts += pool.finish()
         keys = ("distance", "iterations", "converged", "primal_residual", "dual_residual", "penalty")
@@ -337,9 +348,10 @@ class DistanceSolver:
             self._workspaces[key] = ws
         return self._workspaces[key]
 
-    def _admm(self, sets, ws, verbose, start=None, keep_duals=False):
+    def _admm(self, sets, ws, verbose, start=None, keep_duals=False, schedule=None):
         """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks), from
-        zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None)."""
+        zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), with the
+        penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``)."""
         t0 = time.perf_counter()
         tol = tolerances
         factor = self.regularizer.tolerance_factor
@@ -364,9 +376,10 @@ class DistanceSolver:
             ws[name].zero_()
         L = self.operators.length_scale
         A = self.operators.total_volume
-        rho0, rho_max = (f * t for f, t in zip(self.regularizer.rho_factors, (tol.rho0, tol.rho_max)))
-        # the schedule rho_k = L min(rho_max, rho0 2^((k + offset) / rho_doubling)); a warm start
-        # continues it from the penalty it carries
+        if schedule is None:
+            schedule = PenaltySchedule.single_source(tol, self.regularizer.rho_factors, L)
+        # iteration it runs with rho = schedule.rho(it + offset); a warm start continues the
+        # schedule from the penalty it carries. The change test compares with u0 (zero or the start's).
         offset = 0.0
         snapshot = np.zeros((n, nb * W))
         if start is not None:
@@ -377,8 +390,10 @@ class DistanceSolver:
             if y0 is not None:
                 ws["y"].assign(_lanes(y0, nb, W))
                 ws["z"].assign(_lanes(self._project_gradient(u0), nb, W))
-                offset = max(0.0, tol.rho_doubling * math.log2(float(np.median(penalty)) / rho0))
-        rho = L * min(rho_max, rho0 * 2.0 ** (offset / tol.rho_doubling))
+                offset = schedule.offset_for(L * float(np.median(penalty)))
+        change = ChangeTest(tol.change_window, factor * tol.eps_change, nb * W)
+        change.reset(snapshot)
+        rho = schedule.rho(offset)
         ws["rho"].assign(np.full((nb, W), rho))
 
         eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
@@ -391,9 +406,6 @@ class DistanceSolver:
         slot_values = np.stack([np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A,
                                 np.sqrt(np.square(self.operators.vertex_volumes) @ free)])
         eps_dual_abs, load_norm = slot_values
-        # change test (tolerances.eps_change): per slot, u at the last test and whether that test held
-        window, eps_change = tol.change_window, factor * tol.eps_change
-        settled = np.zeros((1, nb * W), dtype=bool)
 
         iterations = np.full(k, -1)
         out = np.zeros((n, k))
@@ -416,14 +428,10 @@ class DistanceSolver:
                 dy = np.maximum(np.sqrt(acc[DY2]), load_norm[:live])
                 dual_scale = eps_dual_abs[:live] + dy
                 eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
-                if it % window == 0:
-                    u_now = ws["u"].numpy().reshape(n, -1)[:, :live]
-                    moved = np.abs(u_now - snapshot[:, :live]).max(axis=0)
-                    with np.errstate(invalid="ignore"):  # eps_change = inf (no change test) times 0
-                        settled[0, :live] = (moved == 0) | (moved <= eps_change * np.abs(u_now).max(axis=0))
-                    snapshot[:, :live] = u_now
+                if change.due(it):
+                    change.update(ws["u"].numpy().reshape(n, -1)[:, :live])
                 # <=: a source-only column has r = s = eps = 0 and u = 0
-                done = (r <= eps_pri) & (s <= eps_dual) & settled[0, :live]
+                done = (r <= eps_pri) & (s <= eps_dual) & change.settled[:live]
                 new = np.flatnonzero(done & (slot_col[:live] >= 0))
                 if new.size:  # freeze each column at the iterate that met its stopping test
                     cols = slot_col[new]
@@ -440,9 +448,9 @@ class DistanceSolver:
                     break
                 if new.size:
                     per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
-                    live = batch.compact(slot_col, slot_values, per_slot, snapshot, settled)
+                    live = batch.compact(slot_col, change, slot_values, per_slot)
                     r, s, eps_dual, dual_scale = per_slot[:, :live]
-                rho = L * min(rho_max, rho0 * 2.0 ** ((it + offset) / tol.rho_doubling))
+                rho = schedule.rho(it + offset)
                 ws["rho"].assign(np.full((nb, W), rho))
             if not self._scaled and rho != system_rho:
                 system_rho = rho
@@ -496,10 +504,11 @@ class _SolverCopy:
     def __init__(self, arguments, index):
         self.solver = DistanceSolver(device="cpu", workers=1, **arguments)
 
-    def solve(self, sets, W, settings, start, keep_duals):
+    def solve(self, sets, W, settings, start, keep_duals, schedule):
         """The batched ADMM of ``sets`` at lane width W under the caller's ``tolerances`` settings."""
         with tolerances.override(**settings):
-            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False, start, keep_duals)
+            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False, start, keep_duals,
+                                     schedule)
 
 
 def _lanes(values, nb, W):
@@ -550,12 +559,12 @@ class _ColumnBatch:
             ws["z"], ws["y"], ws["acc"], chunk, m])
         ws["pcg"].set_active_blocks(blocks)
 
-    def compact(self, slot_col, *slot_values):
+    def compact(self, slot_col, change, *slot_values):
         """Move running columns out of the last blocks when they fit in fewer; returns the live slots.
 
-        ``slot_col`` (slots,) maps slot -> column (-1: free) and each of ``slot_values``
-        (c, >= live slots) holds per-slot host values; all are permuted in place like the
-        device state.
+        ``slot_col`` (slots,) maps slot -> column (-1: free), ``change`` is the batch's
+        :class:`~warp_regdist.admm.ChangeTest` and each of ``slot_values`` (c, >= live slots)
+        holds per-slot host values; all are permuted in place like the device state.
         """
         W, live = self.W, self.blocks * self.W
         running = np.flatnonzero(slot_col[:live] >= 0)
@@ -580,5 +589,6 @@ class _ColumnBatch:
             slot_col[dst], slot_col[src] = slot_col[src], -1
             for values in slot_values:
                 values[:, dst] = values[:, src]
+            change.permute(dst, src)
         self._record(blocks)
         return keep

@@ -1,0 +1,196 @@
+"""The ADMM engine's parts (warp_regdist/admm.py) on their own, and swapped into both solvers.
+
+Schedules and change tests are checked on exact numbers (powers of two, hand-made columns);
+a swapped schedule must change the iterations but not the answer: the cvxpy + Clarabel
+minimizer (tests/reference_solver.py for single sources, tests/data/all_pairs_bumpy42.npz for
+all pairs) within 1e-3 of the maximal distance.
+"""
+
+import copy
+import math
+import os
+
+import numpy as np
+import pytest
+
+import meshes
+import reference_solver as rs
+import warp_regdist as wrd
+from conftest import TIGHT
+from warp_regdist.admm import ChangeTest, ExtrapolatedChangeTest
+from warp_regdist import PenaltySchedule
+
+PAIRS = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
+
+
+def test_schedule_values_and_offsets():
+    s = PenaltySchedule(rho0=0.5, rho_max=4.0, doubling=10.0, scale=2.0)
+    assert [s.rho(k) for k in (0, 10, 20, 25, 30, 31, 1000)] == [1.0, 2.0, 4.0, 4.0 * math.sqrt(2.0), 8.0, 8.0, 8.0]
+    assert s.offset_for(4.0) == 20.0 and s.rho(s.offset_for(4.0)) == 4.0
+    assert s.offset_for(1.0) == 0.0 and s.offset_for(0.25) == 0.0  # at or below scale rho0: from the start
+    constant = PenaltySchedule(0.5, 4.0, math.inf, 2.0)
+    assert constant.rho(0) == constant.rho(500) == 1.0 and constant.offset_for(8.0) == 0.0
+
+
+def test_schedules_from_tolerances():
+    tol = wrd.Tolerances()
+    assert PenaltySchedule.single_source(tol, (1.0, 8.0), 3.0) == PenaltySchedule(0.5, 32.0, 10.0, 3.0)
+    assert PenaltySchedule.all_pairs(tol, 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
+    with wrd.tolerances.override(rho0=1.0, pairs_rho_doubling=15.0):
+        assert PenaltySchedule.single_source(wrd.tolerances, (1.0, 1.0), 1.0).rho0 == 1.0
+        assert PenaltySchedule.all_pairs(wrd.tolerances, 1.0).doubling == 15.0
+
+
+def test_bad_schedules_are_refused():
+    with pytest.raises(ValueError, match=r"expected PenaltySchedule rho0 as a finite number > 0, got -1\.0"):
+        PenaltySchedule(-1.0, 4.0, 10.0, 1.0)
+    with pytest.raises(ValueError, match=r"expected PenaltySchedule doubling as a finite number > 0 \(or inf\), got 0"):
+        PenaltySchedule(0.5, 4.0, 0, 1.0)
+    mesh = wrd.Mesh(*meshes.icosphere(1, 1.0))
+    message = r"expected schedule as a PenaltySchedule or an object with rho\(k\) and offset_for\(penalty\), got float"
+    with pytest.raises(ValueError, match=message):
+        wrd.DistanceSolver(mesh, 0.05).solve([0], schedule=2.0)
+    with pytest.raises(ValueError, match=message):
+        wrd.all_pairs(mesh, 0.05, schedule=2.0)
+    with pytest.raises(ValueError, match=r"expected a change-test window as an integer >= 1, got 0"):
+        ChangeTest(0, 1e-3, 2)
+
+
+def test_change_test_settles_exactly_when_it_should():
+    test = ChangeTest(window=10, eps=0.125, columns=3)
+    assert [test.due(k) for k in (5, 10, 20)] == [False, True, True]
+    test.reset(np.zeros((2, 3)))
+    # column 0 stays 0 (a source-only column), columns 1 and 2 start
+    assert test.update(np.array([[0.0, 8.0, 8.0], [0.0, 1.0, 2.0]])).tolist() == [True, False, False]
+    # moved 1 = 0.125 max |u| (settled, the bound is inclusive), moved 2 > 0.125 * 8
+    assert test.update(np.array([[0.0, 8.0, 8.0], [0.0, 2.0, 4.0]])).tolist() == [True, True, False]
+    # only the first two columns are live: the third keeps its flag and snapshot
+    assert test.update(np.array([[0.0, 8.0], [0.0, 4.0]])).tolist() == [True, False]
+    assert test.settled.tolist() == [True, False, False] and test.snapshot[:, 2].tolist() == [8.0, 4.0]
+    never = ChangeTest(10, math.inf, 1)  # inf: no change test, settled at the first comparison
+    never.reset(np.zeros((2, 1)))
+    assert never.update(np.array([[1.0], [2.0]])).tolist() == [True]
+
+
+def test_change_test_permute_reset_and_state_round_trip():
+    test = ChangeTest(10, 0.125, 3)
+    test.reset(np.array([[1.0, 2.0, 3.0]]))
+    test.update(np.array([[1.0, 2.0, 30.0]]))
+    assert test.settled.tolist() == [True, True, False]
+    test.permute(np.array([0]), np.array([2]))  # the compaction moves column 2 into slot 0
+    assert test.snapshot.tolist() == [[30.0, 2.0, 30.0]] and test.settled.tolist() == [False, True, False]
+    saved = copy.deepcopy(test.state())
+    again = ChangeTest(10, 0.125, 3)
+    again.restore(saved)
+    u = np.array([[31.0, 2.0, 0.0]])
+    assert again.update(u).tolist() == test.update(u).tolist() == [True, True, False]
+    test.reset(np.zeros((1, 3)))
+    assert test.settled.tolist() == [False] * 3 and test.snapshot.tolist() == [[0.0] * 3]
+
+
+def test_extrapolated_change_test_numbers():
+    test = ExtrapolatedChangeTest(window=50, eps=0.5, columns=1)
+    assert not test.settled[0] and test.change[0] == math.inf
+    u = np.array([[8.0], [0.0]])
+    assert test.update(u).tolist() == [False] and test.change[0] == math.inf  # the first only records u
+    test.update(u + [[0.0], [4.0]])  # c = 4 / 8, nothing to extrapolate from yet
+    assert test.window_change[0] == 0.5 and test.change[0] == math.inf and not test.settled[0]
+    saved = copy.deepcopy(test.state())
+    assert test.update(u + [[0.0], [6.0]]).tolist() == [True]  # c = 2 / 8: 0.25 / (1 - 0.25 / 0.5) = 0.5 <= eps
+    assert test.window_change[0] == 0.25 and test.change[0] == 0.5
+    test.update(u + [[0.0], [2.0]])  # c = 4 / 8 grows: inf
+    assert test.change[0] == math.inf and not test.settled[0]
+    test.update(u + [[0.0], [2.0]])  # U stopped moving
+    assert test.change[0] == 0.0 and test.settled[0]
+    resumed = ExtrapolatedChangeTest(50, 0.5, 1)
+    resumed.restore(saved)
+    assert resumed.update(u + [[0.0], [6.0]]).tolist() == [True] and resumed.change[0] == 0.5
+    assert ExtrapolatedChangeTest(50, math.inf, 1).settled[0]  # no change test: settled from the start
+
+
+@pytest.fixture(scope="module")
+def sphere162():
+    V, F = meshes.icosphere(2, 1.0)
+    V = meshes.perturbed(V, F, 0.02, seed=1)
+    exact = rs.solve_reference(V, F, [5], 0.05 * np.sqrt(rs.face_geometry(V, F)[0].sum()))
+    return wrd.Mesh(V, F), exact
+
+
+def _error(u, exact):
+    return np.abs(u - exact).max() / exact.max()
+
+
+def test_swapped_schedule_changes_the_iterations_not_the_minimizer(sphere162):
+    mesh, exact = sphere162
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    slow = PenaltySchedule(0.5, 4.0, 20.0, solver.operators.length_scale)
+    with wrd.tolerances.override(**TIGHT):
+        default, swapped = solver.solve([5]), solver.solve([5], schedule=slow)
+    assert default.converged and swapped.converged and swapped.iterations != default.iterations
+    assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
+    assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
+
+
+class _Constant:
+    """A schedule that is no PenaltySchedule: rho(k) = 2 for all k; records the offsets asked."""
+
+    def __init__(self):
+        self.asked = []
+
+    def rho(self, k):
+        return 2.0
+
+    def offset_for(self, penalty):
+        self.asked.append(penalty)
+        return 0.0
+
+
+def test_any_object_with_rho_and_offset_for_is_a_schedule(sphere162):
+    mesh, exact = sphere162
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    constant = _Constant()
+    with wrd.tolerances.override(**TIGHT):
+        res = solver.solve([5], schedule=constant)
+    assert res.converged and res.penalty == 2.0 / solver.operators.length_scale
+    assert _error(res.distance, exact) <= 1e-3
+    again = solver.solve([5], initial=res, schedule=constant)  # the warm start asks for its absolute penalty
+    assert constant.asked == [pytest.approx(2.0, rel=1e-15)] and again.iterations == wrd.tolerances.change_window
+
+
+def test_swapped_schedule_reaches_the_worker_processes(sphere162):
+    mesh, _ = sphere162
+    sets = [[j] for j in range(9)]  # two lane blocks of 8: one per process
+    slow = PenaltySchedule(0.5, 4.0, 20.0, wrd.build_operators(mesh).length_scale)
+    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+        split = solver.solve_many(sets, schedule=slow)
+    alone = wrd.DistanceSolver(mesh, 0.05, workers=1).solve_many(sets, schedule=slow)
+    np.testing.assert_array_equal(split.iterations, alone.iterations)
+    np.testing.assert_array_equal(split.distance, alone.distance)
+
+
+def test_single_source_honors_tolerances_rho0(sphere162):
+    solver = wrd.DistanceSolver(sphere162[0], 0.05, workers=1)
+    default = solver.solve([5])
+    with wrd.tolerances.override(rho0=1.0):
+        assert solver.solve([5]).iterations != default.iterations
+    schedule = PenaltySchedule(1.0, 4.0, 10.0, solver.operators.length_scale)
+    with wrd.tolerances.override(rho0=1.0):  # the same schedule through the argument
+        assert solver.solve([5], schedule=schedule).iterations == solver.solve([5]).iterations
+
+
+@pytest.fixture(scope="module")
+def bumpy42():
+    d = np.load(PAIRS)
+    return wrd.Mesh(d["vertices"], d["faces"]), d["U_01"]
+
+
+def test_all_pairs_swapped_schedule_and_pairs_rho0(bumpy42):
+    mesh, exact = bumpy42
+    fast = PenaltySchedule(0.5, 4.0, 10.0, wrd.build_operators(mesh).length_scale)
+    default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
+    swapped = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, schedule=fast)
+    assert default.converged and swapped.converged and swapped.iterations != default.iterations
+    assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
+    assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
+    with wrd.tolerances.override(pairs_rho0=1.0):
+        assert wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4).iterations != default.iterations
