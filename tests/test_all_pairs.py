@@ -201,3 +201,32 @@ def test_cli_allpairs(tmp_path, capsys):
     assert "iteration" in err and "r1" in err
     assert main(["allpairs", str(tmp_path / "missing.off"), "--output", str(out)]) == 2
     assert capsys.readouterr().err.startswith("warp-regdist: error:")
+
+
+def test_warm_start_from_another_alpha_hat_reaches_the_new_minimizer(bumpy42, tmp_path):
+    # continuation 0.03 -> 0.1: the start is 2.9% of the maximum away from the new minimizer
+    mesh, refs = bumpy42
+    path = tmp_path / "a003.npz"
+    first = wrd.all_pairs(mesh, 0.03, checkpoint=path)
+    assert first.converged and np.abs(refs[0.03] - refs[0.1]).max() > 0.02 * refs[0.1].max()
+    again = wrd.all_pairs(mesh, 0.03, resume=path)  # a converged run's checkpoint holds its result
+    assert again.iterations == first.iterations and np.array_equal(again.distance, first.distance)
+    cold = wrd.all_pairs(mesh, 0.1)
+    warm = wrd.all_pairs(mesh, 0.1, initial=path)
+    assert warm.converged and warm.iterations < cold.iterations and warm.iterations == len(warm.history)
+    assert np.abs(warm.distance - refs[0.1]).max() <= 0.01 * refs[0.1].max()
+    assert np.array_equal(warm.distance, warm.distance.T)
+
+
+def test_warm_start_checkpoint_is_checked(bumpy42, tmp_path):
+    mesh, _ = bumpy42
+    path = tmp_path / "a.npz"
+    with pytest.warns(wrd.ConvergenceWarning):
+        wrd.all_pairs(mesh, 0.1, max_iterations=3, checkpoint=path, dtype="float32")
+    with pytest.raises(ValueError, match=r"expected a checkpoint of this mesh and dtype \(dtype 'float64'\), "
+                                         r"got one of another problem \(dtype 'float32'\)"):
+        wrd.all_pairs(mesh, 0.1, initial=path)
+    with pytest.raises(ValueError, match="expected resume .* or initial .*, got both"):
+        wrd.all_pairs(mesh, 0.1, initial=path, resume=path, dtype="float32")
+    with pytest.raises(ValueError, match=r"expected initial as an all-pairs checkpoint \(\.npz\), got .*nothing\.npz"):
+        wrd.all_pairs(mesh, 0.1, initial=tmp_path / "nothing.npz")

@@ -180,3 +180,13 @@ def test_cli_allpairs_checkpoint_and_resume(sphere642, tmp_path, capsys):
     assert main(["allpairs", str(off), "--output", str(out), "--resume", str(tmp_path / "none.npz"),
                  "--device", "cpu"]) == 2
     assert "expected --resume as an existing checkpoint file" in capsys.readouterr().err
+    # --initial: the checkpoint as the start of another alpha_hat (that the answer is then the new
+    # minimizer is checked in test_all_pairs; here the plumbing)
+    assert main(["allpairs", str(off), "--alpha-hat", "0.05", "--output", str(out), "--initial", str(ckpt),
+                 "--max-iterations", "3", "--device", "cpu", "--quiet"]) == 0
+    warm = _quiet_all_pairs(mesh, 0.05, max_iterations=3, device="cpu", initial=ckpt)
+    assert np.array_equal(np.load(out), warm.distance)
+    assert not np.array_equal(warm.distance, _quiet_all_pairs(mesh, 0.05, max_iterations=3, device="cpu").distance)
+    assert main(["allpairs", str(off), "--output", str(out), "--initial", str(tmp_path / "none.npz"),
+                 "--device", "cpu"]) == 2
+    assert "expected --initial as an existing checkpoint file" in capsys.readouterr().err

@@ -171,11 +171,14 @@ def _parser() -> argparse.ArgumentParser:
         "--checkpoint",
         metavar="FILE",
         help="write the whole solver state to FILE (.npz) every --checkpoint-seconds, at the iteration cap "
-        "and on Ctrl-C, so that --resume FILE continues the run (the same matrix as an uninterrupted run)",
+        "on Ctrl-C and at convergence, so that --resume FILE continues the run (the same matrix as an uninterrupted "
+        "run) and --initial FILE starts another alpha_hat from it",
     )
     allpairs.add_argument("--checkpoint-seconds", type=float, default=300.0, metavar="S",
                           help="seconds between checkpoints (default: 300)")
     allpairs.add_argument("--resume", metavar="FILE", help="continue from a checkpoint of the same problem")
+    allpairs.add_argument("--initial", metavar="FILE",
+                          help="warm start from a checkpoint of this mesh and dtype at another alpha_hat")
     allpairs.add_argument("--max-iterations", type=int, default=3000, metavar="N",
                           help="ADMM iteration cap (default: 3000)")
     allpairs.add_argument("--workers", type=int, default=None, metavar="N",
@@ -370,15 +373,16 @@ def _allpairs(args: argparse.Namespace) -> None:
     _check_output(args.output, (".npy",), "--output")
     if args.checkpoint is not None:
         _check_output(args.checkpoint, (".npz",), "--checkpoint")
-    if args.resume is not None and not os.path.isfile(args.resume):
-        raise ValueError(f"expected --resume as an existing checkpoint file, got {args.resume!r} (no such file)")
+    for flag, path in (("--resume", args.resume), ("--initial", args.initial)):
+        if path is not None and not os.path.isfile(path):
+            raise ValueError(f"expected {flag} as an existing checkpoint file, got {path!r} (no such file)")
     mesh = _load(args.mesh)
     wp.config.log_level = wp.LOG_WARNING
     with _warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
                            progress=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
                            workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
-                           resume=args.resume)
+                           resume=args.resume, initial=args.initial)
     saved = f"; the solver state is in {args.checkpoint} (continue with --resume {args.checkpoint})" \
         if args.checkpoint is not None else ""
     if result.interrupted:
