@@ -10,10 +10,7 @@ import types
 
 import warp as wp
 
-from .lanes import lane_funcs, lane_type
-
-# Rows of the ADMM accumulator array acc (5, nb).
-R2, GU2, Z2, S2, DY2 = 0, 1, 2, 3, 4
+from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, lane_funcs, lane_type
 
 
 @functools.cache
@@ -35,14 +32,15 @@ def admm_kernels(scalar, W, k):
 
             g = (G u)_e,  h = a g + (1 - a) z_old,  z_e = Proj_{|.|<=1}(y_e / rho + h),
             y_e += rho (h - z_e),
-        and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, GU2, Z2.
+        and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, G2, Z2.
         """
         c, b = wp.tid()
         rb = rho[b]
         r2 = V()
         g2 = V()
         z2 = V()
-        for e in range(c * chunk, wp.min(c * chunk + chunk, m)):
+        e0, e1 = chunk_rows(c, chunk, m)
+        for e in range(e0, e1):
             gx, gy, gz = element_gradient(elements, basis, u, e, b, k)
             ox = z[e, 0, b]
             oy = z[e, 1, b]
@@ -68,7 +66,7 @@ def admm_kernels(scalar, W, k):
             g2 += a * norm2(gx, gy, gz)
             z2 += a * norm2(zx, zy, zz)
         wp.atomic_add(acc, R2, b, r2)
-        wp.atomic_add(acc, GU2, b, g2)
+        wp.atomic_add(acc, G2, b, g2)
         wp.atomic_add(acc, Z2, b, z2)
 
     @wp.kernel(enable_backward=False, module=module)
@@ -85,7 +83,8 @@ def admm_kernels(scalar, W, k):
         c, b = wp.tid()
         s2 = V()
         d2 = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             dy = V()
             dzi = V()
             p = offsets[i]
@@ -118,7 +117,8 @@ def admm_kernels(scalar, W, k):
         den = V()
         for l in range(W):
             den[l] = shift + scale * rb[l]
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             num = vertex_vol[i] * V(one) - Dy[i, b] + wp.cw_mul(rb, Dz[i, b])
             rhs[i, b] = wp.cw_mul(mask[i, b], wp.cw_div(num, den))
 

@@ -15,10 +15,8 @@ import types
 
 import warp as wp
 
-from .lanes import lane_funcs, lane_type
+from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, lane_funcs, lane_type
 
-# Rows of the per-lane accumulator (5, nb): element step (R2, GX2, Z2), vertex step (S2, DY2).
-R2, GX2, Z2, S2, DY2 = 0, 1, 2, 3, 4
 # Entries of the scalar accumulator (5,) of the consensus step, weighted by A_V[i] A_V[j].
 RX2, X2, U2, SX2, H2 = 0, 1, 2, 3, 4
 
@@ -47,13 +45,14 @@ def all_pairs_kernels(scalar, W):
             v <- Y / rho + h   (so Z_new = Proj(v), Y_new = rho (v - Z_new)),
         scatters the divergences D Z_new and D Y_new, (D w)_i += a_e basis[e, l_i] . w_e, into
         DZ_acc and DY_acc (zero on entry; atomic adds, plain adds on the CPU), and adds per
-        lane a_e |g - Z_new|^2, a_e |g|^2, a_e |Z_new|^2 to acc rows R2, GX2, Z2.
+        lane a_e |g - Z_new|^2, a_e |g|^2, a_e |Z_new|^2 to acc rows R2, G2, Z2.
         """
         c, b = wp.tid()
         r2 = V()
         g2 = V()
         z2 = V()
-        for e in range(c * chunk, wp.min(c * chunk + chunk, m)):
+        e0, e1 = chunk_rows(c, chunk, m)
+        for e in range(e0, e1):
             gx, gy, gz = element_gradient(elements, basis, X, e, b, 3)
             ox = v[e, 0, b]
             oy = v[e, 1, b]
@@ -83,7 +82,7 @@ def all_pairs_kernels(scalar, W):
             g2 += a * norm2(gx, gy, gz)
             z2 += a * norm2(zx, zy, zz)
         wp.atomic_add(acc, R2, b, r2)
-        wp.atomic_add(acc, GX2, b, g2)
+        wp.atomic_add(acc, G2, b, g2)
         wp.atomic_add(acc, Z2, b, z2)
 
     @wp.kernel(enable_backward=False, module=module)
@@ -100,7 +99,8 @@ def all_pairs_kernels(scalar, W):
         c, b = wp.tid()
         s2 = V()
         d2 = V()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, n)):
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
             dz = DZ_acc[i, b]
             dy = DY_acc[i, b]
             DZ_acc[i, b] = V()

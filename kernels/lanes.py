@@ -5,9 +5,14 @@ import types
 
 import warp as wp
 
-__all__ = ["lane_type", "lane_width", "chunk_size", "lane_kernels", "lane_funcs", "SCALARS"]
+__all__ = ["lane_type", "lane_width", "chunk_size", "row_dim", "chunk_rows", "lane_kernels", "lane_funcs", "SCALARS",
+           "R2", "G2", "Z2", "S2", "DY2"]
 
 SCALARS = {"float32": wp.float32, "float64": wp.float64}
+
+# Rows of the per-lane ADMM accumulator acc (5, nb) of both solvers: the element step's
+# a_e |G u - z|^2, a_e |G u|^2, a_e |z|^2 (R2, G2, Z2), the vertex step's |D (z - z_old)|^2, |D y|^2 (S2, DY2).
+R2, G2, Z2, S2, DY2 = 0, 1, 2, 3, 4
 
 # Lane widths per scalar type: 1 (single column) and a full SIMD-friendly block.
 _WIDTHS = {wp.float64: (1, 4, 8), wp.float32: (1, 4, 16)}
@@ -32,6 +37,19 @@ def chunk_size(device):
     return 1 if wp.get_device(device).is_cuda else 128
 
 
+def row_dim(n, chunk, blocks=None):
+    """Launch dimension (row chunks, blocks) of a row loop over n rows, ``chunk`` rows per thread
+    ((row chunks,) without blocks)."""
+    chunks = (n + chunk - 1) // chunk
+    return (chunks,) if blocks is None else (chunks, blocks)
+
+
+@wp.func
+def chunk_rows(c: int, chunk: int, n: int):
+    """First and one-past-last row of chunk c."""
+    return c * chunk, wp.min(c * chunk + chunk, n)
+
+
 @functools.cache
 def lane_kernels(scalar, W):
     """Kernels that rearrange columns stored as lanes of W ``scalar`` values."""
@@ -44,7 +62,8 @@ def lane_kernels(scalar, W):
         """Column dst[t] = column src[t] for t < count, in every row; column j is lane j % W of block j // W.
         The sources and destinations must be disjoint sets of columns."""
         c = wp.tid()
-        for i in range(c * chunk, wp.min(c * chunk + chunk, rows)):
+        i0, i1 = chunk_rows(c, chunk, rows)
+        for i in range(i0, i1):
             for t in range(count):
                 s = src[t]
                 d = dst[t]

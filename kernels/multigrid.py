@@ -12,8 +12,8 @@ import types
 
 import warp as wp
 
-from .lanes import lane_type
-from .pcg import chunk_rows, pcg_kernels
+from .lanes import chunk_rows, lane_type
+from .pcg import pcg_kernels
 
 
 @functools.cache

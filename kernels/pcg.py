@@ -23,7 +23,7 @@ beta = rz_k / rz_k-1), cg_matvec (q = mask K p, PQ of slot k + 1), cg_update
 (k += 1, converged flags, running).
 
 Row loops: each thread of a (row chunks, nb) launch handles ``chunk`` consecutive rows
-(:func:`chunk_rows`) of one column block; :func:`row_dim` is that launch's dimension.
+(``lanes.chunk_rows``) of one column block; ``lanes.row_dim`` is that launch's dimension.
 """
 
 import functools
@@ -31,21 +31,10 @@ import types
 
 import warp as wp
 
-from .lanes import lane_type
+from .lanes import chunk_rows, lane_type
 
 PQ, RZ, RR = 0, 1, 2
 ITERATION, MAX_ITERATIONS = 0, 1
-
-
-def row_dim(n, chunk, blocks):
-    """Launch dimension (row chunks, blocks) of a row loop over n rows, ``chunk`` rows per thread."""
-    return ((n + chunk - 1) // chunk, blocks)
-
-
-@wp.func
-def chunk_rows(c: int, chunk: int, n: int):
-    """First and one-past-last row of chunk c."""
-    return c * chunk, wp.min(c * chunk + chunk, n)
 
 
 @functools.cache

@@ -57,8 +57,8 @@ import scipy.sparse as sp
 import warp as wp
 from scipy.optimize import OptimizeResult
 
-from .kernels.all_pairs import DY2, GX2, H2, R2, RX2, S2, SX2, U2, X2, Z2, all_pairs_kernels
-from .kernels.lanes import SCALARS, chunk_size, lane_type, lane_width
+from .kernels.all_pairs import H2, RX2, SX2, U2, X2, all_pairs_kernels
+from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, chunk_size, lane_type, lane_width, row_dim
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
@@ -218,11 +218,11 @@ class _Part:
         self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
         # each process launches from one thread, so on the CPU the CG loop can be one captured graph
         self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
-        self.vertex = wp.launch(k.vertex_step, ((n + chunk - 1) // chunk, b1 - b0), device=dev, record_cmd=True,
+        self.vertex = wp.launch(k.vertex_step, row_dim(n, chunk, b1 - b0), device=dev, record_cmd=True,
                                 inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
                                 + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
                                 + [chunk, n])
-        self.element = wp.launch(k.element_step, ((m + chunk - 1) // chunk, b1 - b0), device=dev, record_cmd=True,
+        self.element = wp.launch(k.element_step, row_dim(m, chunk, b1 - b0), device=dev, record_cmd=True,
                                  inputs=[a["elements"], a["basis"], a["volumes"], self.X, arrays["v"][:, :, cols],
                                          sc(1.0), sc(1.0), sc(setup.relaxation), arrays["DZ_acc"][:, cols],
                                          arrays["DY_acc"][:, cols], arrays["acc"][:, cols], chunk, m])
@@ -324,12 +324,12 @@ class _SymmetricADMM:
         return max(its)
 
     def consensus(self):
-        """U/H-step; returns (per-column R2, GX2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
+        """U/H-step; returns (per-column R2, G2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
         self.arrays["acc_pairs"].zero_()
         self._each("consensus_step", self.penalties[1])
         acc = self.arrays["acc"].numpy().reshape(5, -1)
         pairs = self.arrays["acc_pairs"].numpy().astype(np.float64).sum(axis=0)  # fixed order: tile rows
-        return acc[[R2, GX2, Z2]].astype(np.float64), pairs
+        return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
     def divergences_from_element_state(self):
         """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:

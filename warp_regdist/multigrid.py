@@ -41,7 +41,7 @@ import warp as wp
 
 from .kernels.lanes import chunk_size, lane_type
 from .kernels.multigrid import multigrid_kernels
-from .kernels.pcg import row_dim
+from .kernels.lanes import row_dim
 from .pcg import csr_arrays
 
 __all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]

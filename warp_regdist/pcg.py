@@ -26,7 +26,8 @@ import scipy.sparse as sp
 import warp as wp
 
 from .kernels.lanes import chunk_size
-from .kernels.pcg import ITERATION, RR, pcg_kernels, row_dim
+from .kernels.lanes import row_dim
+from .kernels.pcg import ITERATION, RR, pcg_kernels
 
 __all__ = ["BatchedPCG", "JacobiPreconditioner", "csr_arrays"]
 

@@ -29,8 +29,8 @@ import numpy as np
 import warp as wp
 from scipy.optimize import OptimizeResult, OptimizeWarning
 
-from .kernels.admm import DY2, GU2, R2, S2, Z2, admm_kernels
-from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width
+from .kernels.admm import admm_kernels
+from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, chunk_size, lane_kernels, lane_type, lane_width, row_dim
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
@@ -424,7 +424,7 @@ class DistanceSolver:
                 acc = ws["acc"].numpy().reshape(5, -1)[:, :live]
                 r = np.sqrt(acc[R2])
                 s = rho * np.sqrt(acc[S2])
-                eps_pri = eps_pri_abs + eps_rel * np.sqrt(np.maximum(acc[GU2], acc[Z2]))
+                eps_pri = eps_pri_abs + eps_rel * np.sqrt(np.maximum(acc[G2], acc[Z2]))
                 dy = np.maximum(np.sqrt(acc[DY2]), load_norm[:live])
                 dual_scale = eps_dual_abs[:live] + dy
                 eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
@@ -546,8 +546,8 @@ class _ColumnBatch:
         n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
         dev, chunk = sv.device, chunk_size(sv.device)
         self.blocks = blocks
-        elem_dim = ((m + chunk - 1) // chunk, blocks)
-        vert_dim = ((n + chunk - 1) // chunk, blocks)
+        elem_dim = row_dim(m, chunk, blocks)
+        vert_dim = row_dim(n, chunk, blocks)
         self.divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
             sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"], ws["y"], ws["z"],
             ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
@@ -584,7 +584,7 @@ class _ColumnBatch:
             for name in ("u", "mask", "z", "y", "Dy", "Dz"):
                 a = ws[name]
                 a2 = a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
-                wp.launch(self.move, ((a2.shape[0] + chunk - 1) // chunk,), device=dev,
+                wp.launch(self.move, row_dim(a2.shape[0], chunk), device=dev,
                           inputs=[a2, s_arr, d_arr, src.size, chunk, a2.shape[0]])
             slot_col[dst], slot_col[src] = slot_col[src], -1
             for values in slot_values:
