@@ -338,3 +338,32 @@ def test_stl_corners_merged_in_order_of_first_appearance(in_tmp):
     _, first = np.unique(corners, axis=0, return_index=True)
     assert np.allclose(mesh.vertices, corners[np.sort(first)], atol=1e-6)
     assert np.allclose(mesh.vertices[mesh.faces], sphere.vertices[sphere.faces], atol=1e-6)
+
+
+def test_mesh_arrays_are_read_only_copies_and_derived_data_is_kept():
+    V, F = SQUARE.copy(), SQUARE_F.copy()
+    mesh = wrd.Mesh(V, F)
+    V[0, 0] = 5.0  # the caller's arrays stay theirs
+    assert mesh.vertices[0, 0] == 0.0
+    for array in (mesh.vertices, mesh.elements, mesh.element_volumes, mesh.components()):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 1
+    with pytest.raises(AttributeError):
+        mesh.vertices = V
+    assert mesh.components() is mesh.components()
+    assert np.array_equal(mesh.element_volumes, [0.5, 0.5])  # two halves of the unit square
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(mesh))  # as sent to worker processes
+    assert not copy.vertices.flags.writeable and np.array_equal(copy.components(), [0, 0, 0, 0])
+
+
+def test_tetrahedron_volumes_and_row_keys_beyond_int64():
+    from warp_regdist.mesh import _row_keys
+
+    cube = wrd.Mesh(np.array([[0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 4.0]]), [[0, 1, 2, 3]])
+    assert cube.element_volumes.tolist() == pytest.approx([4.0], rel=1e-14)  # 2 * 3 * 4 / 6
+    rows = np.array([[2**40, 1, 7], [3, 2**40, 7], [2**40, 1, 7]])  # (2^40 + 1)^3 overflows int64
+    keys = _row_keys(rows)
+    assert keys[0] == keys[2] != keys[1]
+    assert np.array_equal(_row_keys(np.array([[1, 2], [2, 1], [1, 2]])), [5, 7, 5])  # base 3: 1*3 + 2, 2*3 + 1

@@ -158,8 +158,7 @@ def line_field(mesh, faces, directions, fade=None):
         d = igl.exact_geodesic(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
                                np.unique(F[faces]).astype(np.int64), np.empty(0, dtype=np.int64),
                                np.arange(len(V), dtype=np.int64), np.empty(0, dtype=np.int64))
-        P = V[F]
-        sigma = fade * math.sqrt(0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
+        sigma = fade * math.sqrt(mesh.element_volumes.sum())
         field *= np.exp(-np.square(d[F].mean(axis=1)) / (2.0 * sigma * sigma))[:, None]
     return field
 

@@ -32,13 +32,17 @@ class Mesh:
 
     Attributes
     ----------
-    vertices : (n, 3) ndarray of float64
-    elements : (m, d + 1) ndarray of int64
+    vertices : (n, 3) ndarray of float64, read-only
+    elements : (m, d + 1) ndarray of int64, read-only
+    element_volumes : (m,) ndarray of float64, read-only
+        Areas (triangles, |e_1 x e_2| / 2) or volumes (tetrahedra, det[e_1 e_2 e_3] / 6)
+        a_e > 0, with e_i = v_i - v_0: computed once, by the validation.
     element_dim : int
         2 for triangles, 3 for tetrahedra.
 
     Vertices that no element references are kept (their distance is +inf), so the
-    user's vertex indices are never renumbered.
+    user's vertex indices are never renumbered. The arrays are copies of the input and
+    read-only, so what is derived from them once (volumes, :meth:`components`) stays true.
     """
 
     def __init__(self, vertices, elements):
@@ -72,12 +76,34 @@ class Mesh:
         rep = np.flatnonzero((S[:, 1:] == S[:, :-1]).any(axis=1))
         if rep.size:
             raise MeshError(f"expected distinct vertices in every element, got element {rep[0]} = {T[rep[0]].tolist()} (degenerate, {rep.size} such)")
-        self.vertices = V
-        self.elements = T
+        self._vertices = _read_only(V)
+        self._elements = _read_only(T)
         self.element_dim = T.shape[1] - 1
-        self._check_volumes()
+        self._element_volumes = _read_only(self._checked_volumes())
         if self.element_dim == 2:
             self._check_manifold_edges()
+        self._components = None
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for name in ("_vertices", "_elements", "_element_volumes", "_components"):
+            if self.__dict__[name] is not None:
+                _read_only(self.__dict__[name])
+
+    @property
+    def vertices(self):
+        """(n, 3) ndarray of float64 (read-only)."""
+        return self._vertices
+
+    @property
+    def elements(self):
+        """(m, d + 1) ndarray of int64 (read-only)."""
+        return self._elements
+
+    @property
+    def element_volumes(self):
+        """(m,) ndarray of float64 (read-only): areas (triangles) or volumes (tetrahedra) a_e."""
+        return self._element_volumes
 
     @property
     def faces(self):
@@ -94,10 +120,11 @@ class Mesh:
     def n_elements(self):
         return self.elements.shape[0]
 
-    def _check_volumes(self):
-        P = self.vertices[self.elements]
-        E = P[:, 1:] - P[:, :1]
-        scale = np.max(np.linalg.norm(E, axis=2), axis=1)
+    def _checked_volumes(self):
+        """The element volumes, after refusing inverted and degenerate elements."""
+        V, T = self.vertices, self.elements
+        E = V[T[:, 1:]] - V[T[:, :1]]                      # (m, d, 3): e_i = v_i - v_0
+        longest_squared = np.einsum("mij,mij->mi", E, E).max(axis=1)
         if self.element_dim == 2:
             vol = 0.5 * np.linalg.norm(np.cross(E[:, 0], E[:, 1]), axis=1)
             kind, what = "face", "zero-area"
@@ -107,33 +134,40 @@ class Mesh:
             inv = np.flatnonzero(vol < 0)
             if inv.size:
                 raise MeshError(f"expected positively oriented tetrahedra, got {inv.size} inverted (first: tetrahedron {inv[0]})")
-        tiny = tolerances.degenerate_element * scale ** self.element_dim
+        tiny = tolerances.degenerate_element * longest_squared ** (self.element_dim / 2)
         bad = np.flatnonzero(np.abs(vol) <= tiny)
         if bad.size:
             raise MeshError(f"expected non-degenerate elements, got {bad.size} {what} {kind}(s) (first: {kind} {bad[0]} = {self.elements[bad[0]].tolist()})")
+        return vol
 
     def _check_manifold_edges(self):
         F = self.elements
-        e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-        _, inv, counts = np.unique(e, axis=0, return_inverse=True, return_counts=True)
-        over = np.flatnonzero(counts > 2)
-        if over.size:
-            k = np.flatnonzero(counts[inv.ravel()] > 2)[0]
-            raise MeshError(
-                f"expected a manifold mesh (at most 2 faces per edge), got {over.size} non-manifold edges "
-                f"(first: edge {e[k].tolist()} shared by {counts[over[0]]} faces)")
+        a, b = F.T.ravel(), F[:, [1, 2, 0]].T.ravel()       # edges (0, 1) of every face, then (1, 2), then (2, 0)
+        key = np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
+        ordered = np.sort(key)
+        if not (ordered[2:] == ordered[:-2]).any():
+            return
+        _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+        k = np.flatnonzero(counts[inv] > 2)[0]
+        raise MeshError(
+            f"expected a manifold mesh (at most 2 faces per edge), got {np.count_nonzero(counts > 2)} non-manifold "
+            f"edges (first: edge {sorted([a[k].item(), b[k].item()])} shared by {counts[inv[k]]} faces)")
 
     def components(self):
-        """(n,) int64 connected-component label of every vertex; unreferenced vertices get -1."""
-        T = self.elements
-        n = self.n_vertices
-        rows = np.repeat(T[:, 0], T.shape[1] - 1)
-        cols = T[:, 1:].ravel()
-        g = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
-        _, labels = csgraph.connected_components(g, directed=False)
-        used = np.zeros(n, bool)
-        used[T.ravel()] = True
-        return np.where(used, labels, -1).astype(np.int64)
+        """(n,) int64 connected-component label of every vertex, read-only; unreferenced vertices get -1.
+
+        Computed on the first call and kept (the mesh's arrays cannot change)."""
+        if self._components is None:
+            T = self.elements
+            n = self.n_vertices
+            rows = np.repeat(T[:, 0], T.shape[1] - 1)
+            cols = T[:, 1:].ravel()
+            g = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+            _, labels = csgraph.connected_components(g, directed=False)
+            used = np.zeros(n, bool)
+            used[T.ravel()] = True
+            self._components = _read_only(np.where(used, labels, -1).astype(np.int64))
+        return self._components
 
     def __repr__(self):
         kind = "triangles" if self.element_dim == 2 else "tetrahedra"
@@ -151,5 +185,24 @@ def boundary_vertices(mesh):
     d = mesh.element_dim
     facets = np.concatenate([np.delete(T, i, axis=1) for i in range(d + 1)])
     key = np.sort(facets, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return np.unique(key[counts[inv.ravel()] == 1]).astype(np.int64)
+    _, inv, counts = np.unique(_row_keys(key), return_inverse=True, return_counts=True)
+    return np.unique(key[counts[inv] == 1]).astype(np.int64)
+
+
+def _read_only(array):
+    array.flags.writeable = False
+    return array
+
+
+def _row_keys(rows):
+    """(k, c) non-negative int64 rows -> (k,) keys, equal exactly where the rows are equal.
+
+    A row's base-(max + 1) number when it fits in int64 (a sort of integers instead of
+    np.unique(axis=0)'s sort of byte strings), else its rank among the distinct rows."""
+    base = int(rows.max(initial=0)) + 1
+    if base ** rows.shape[1] < 2 ** 63:
+        key = np.zeros(len(rows), dtype=np.int64)
+        for column in rows.T:
+            key = key * base + column
+        return key
+    return np.unique(rows, axis=0, return_inverse=True)[1].ravel()

@@ -215,8 +215,9 @@ def smoothed_aggregation(matrix, theta=0.5, coarse_size=256, max_levels=20, seed
         Dinv = sp.diags(dinv)
         P = (T - w * (Dinv @ (A @ T))).tocsr()
         smoothers.append((2 * w * Dinv - w * w * (Dinv @ A @ Dinv)).tocsr())
-        restrictions.append((P.T - w * ((P.T @ A) @ Dinv)).tocsr())
-        A = (P.T @ A @ P).tocsr()
+        PtA = P.T @ A
+        restrictions.append((P.T - w * (PtA @ Dinv)).tocsr())
+        A = (PtA @ P).tocsr()
         A = ((A + A.T) * 0.5).tocsr()
     for M in smoothers + restrictions:
         M.eliminate_zeros()

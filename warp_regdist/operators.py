@@ -88,18 +88,27 @@ def element_gradients(vertices, elements):
 
 
 def build_operators(mesh):
-    """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`."""
+    """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`.
+
+    G is written in CSR form directly (row 3 e + c holds the element's vertices in
+    increasing order) and M_F G^T from the vertex-element incidence (one counting sort),
+    so that W_D = (G^T M_F) G is a single sparse product, with no COO or CSC conversions.
+    """
     T = mesh.elements
     n, m, k = mesh.n_vertices, T.shape[0], T.shape[1]
     basis, vol = element_gradients(mesh.vertices, T)
-    rows = (3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :]).repeat(k, axis=1)
-    cols = np.broadcast_to(T[:, :, None], (m, k, 3))
-    G = sp.csr_matrix((basis.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, n))
-    W = (G.T @ sp.diags(np.repeat(vol, 3)) @ G).tocsr()
+    index = np.int32 if max(3 * m * k, 3 * m, n) < 2 ** 31 else np.int64
+    local = np.argsort(T, axis=1)
+    columns = np.broadcast_to(np.take_along_axis(T, local, axis=1)[:, None, :].astype(index), (m, 3, k))
+    values = np.take_along_axis(basis.transpose(0, 2, 1), local[:, None, :], axis=2)          # (m, 3, k)
+    G = sp.csr_matrix((values.ravel(), columns.ravel(), np.arange(0, 3 * m * k + 1, k, dtype=index)), shape=(3 * m, n))
+    incidence = sp.csr_matrix((np.arange(m * k), T.ravel(), np.arange(0, m * k + 1, k)), shape=(m, n)).tocsc()
+    offsets, element, corner = incidence.indptr.astype(np.int64), incidence.data // k, incidence.data % k
+    weights = basis.reshape(m * k, 3)[incidence.data] * vol[element, None]                   # M_F G^T, (k m, 3)
+    GtM = sp.csr_matrix((weights.ravel(), (3 * element[:, None] + np.arange(3)).astype(index).ravel(),
+                         3 * offsets.astype(index)), shape=(n, 3 * m))
+    W = GtM @ G
     W = ((W + W.T) * 0.5).tocsr()
     W.sort_indices()
     AV = np.bincount(T.ravel(), weights=np.repeat(vol / k, k), minlength=n)
-    order = np.argsort(T.ravel(), kind="stable")
-    offsets = np.concatenate([[0], np.cumsum(np.bincount(T.ravel(), minlength=n))])
-    vertex_elements = (offsets.astype(np.int64), (order // k).astype(np.int64), (order % k).astype(np.int64))
-    return Operators(basis, vol, AV, float(vol.sum()), G, W, vertex_elements)
+    return Operators(basis, vol, AV, float(vol.sum()), G, W, (offsets, element, corner))
