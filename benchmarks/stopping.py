@@ -48,7 +48,8 @@ def decimated(name, vertices):
     import fast_simplification
 
     mesh = meshes.shared_mesh(name)
-    V, F = fast_simplification.simplify(mesh.vertices, mesh.elements, target_reduction=1 - vertices / mesh.n_vertices)
+    V, F = fast_simplification.simplify(np.array(mesh.vertices), np.array(mesh.elements),  # writeable copies
+                                        target_reduction=1 - vertices / mesh.n_vertices)
     return wrd.Mesh(V.astype(np.float64), F.astype(np.int64))
 
 
