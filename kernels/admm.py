@@ -1,8 +1,13 @@
-"""Per-element and per-vertex kernels of one ADMM iteration (docs/method.md section 4), column-batched.
+"""Per-element and per-vertex kernels of one ADMM iteration (docs/method.md section 4), column-batched,
+and the stopping test, penalty and CG tolerances decided on the device (section 8).
 
 Shapes: u (n, nb); z, y (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
 dtype V. ``basis`` (m, k) vec3 are the hat-function gradients, ``vol`` (m,) the element
 volumes a_e, k = d + 1 vertices per element.
+
+Device-resident loop state: ``step`` (2,) int32 holds the iteration IT and the CG iterations
+summed so far CG_TOTAL; ``lane`` (LANE_ROWS, nb) holds per lane (column) the rows below;
+``rho_table`` (T,) the penalty of iteration it at it % T (written ahead by the host).
 """
 
 import functools
@@ -12,6 +17,14 @@ import warp as wp
 
 from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, lane_funcs, lane_type
 
+IT, CG_TOTAL = 0, 1
+# Rows of ``lane``: the per-lane constants of the test (eps_abs sqrt(n_free) A, |mask A_V|), the
+# change test's maxima and flag, the done / newly-done flags, this check's residuals and
+# tolerances, and the values recorded when the lane's test first held.
+(EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, SETTLED, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI, EPS_DUAL, DUAL_SCALE,
+ RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT) = range(17)
+LANE_ROWS = 17
+
 
 @functools.cache
 def admm_kernels(scalar, W, k):
@@ -20,6 +33,7 @@ def admm_kernels(scalar, W, k):
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_admm_{scalar.__name__}_{W}_{k}")
     one = scalar(1.0)
+    zero = scalar(0.0)
     f = lane_funcs(scalar, W)
     element_gradient, ball_scale, norm2 = f.element_gradient, f.ball_scale, f.norm2
 
@@ -122,4 +136,144 @@ def admm_kernels(scalar, W, k):
             num = vertex_vol[i] * V(one) - Dy[i, b] + wp.cw_mul(rb, Dz[i, b])
             rhs[i, b] = wp.cw_mul(mask[i, b], wp.cw_div(num, den))
 
-    return types.SimpleNamespace(element_step=element_step, vertex_divergence=vertex_divergence, u_rhs=u_rhs, V=V, V3=V3)
+    @wp.kernel(enable_backward=False, module=module)
+    def change_measure(u: wp.array2d(dtype=V), snapshot: wp.array2d(dtype=V), step: wp.array(dtype=wp.int32),
+                       window: int, lane: wp.array2d(dtype=V), chunk: int, n: int):
+        """Change test at iterations it > 0 with it % window == 0 (else nothing): per lane, the maxima
+        of |u - snapshot| and |u| into lane rows MOVED, UMAX (cleared by admm_check), then snapshot = u."""
+        c, b = wp.tid()
+        it = step[IT]
+        if it == 0 or it % window != 0:
+            return
+        moved = V()
+        top = V()
+        i0, i1 = chunk_rows(c, chunk, n)
+        for i in range(i0, i1):
+            ui = u[i, b]
+            d = ui - snapshot[i, b]
+            for l in range(W):
+                moved[l] = wp.max(moved[l], wp.abs(d[l]))
+                top[l] = wp.max(top[l], wp.abs(ui[l]))
+            snapshot[i, b] = ui
+        wp.atomic_max(lane, MOVED, b, moved)
+        wp.atomic_max(lane, UMAX, b, top)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def admm_check(acc: wp.array2d(dtype=V), lane: wp.array2d(dtype=V), rho: wp.array(dtype=V),
+                   step: wp.array(dtype=wp.int32), rho_table: wp.array(dtype=scalar), window: int,
+                   eps_pri_abs: scalar, eps_rel: scalar, eps_rel_dual: scalar, eps_change: scalar,
+                   cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar, scale: scalar,
+                   length: scalar, atol2: wp.array(dtype=V)):
+        """Top of iteration it, per lane of block b: the residuals of the last iterate (it > 0),
+
+            r = |sqrt(M_F)(G u - z)|,  s = rho_old |D (z - z_old)|,
+            eps_pri = eps_pri_abs + eps_rel max(|G u|, |z|),  dy = max(|D y|, |mask A_V|),
+            eps_dual = eps_dual_abs + eps_rel_dual dy,
+            the change test every ``window`` iterations (settled: MOVED = 0 or MOVED <= eps_change UMAX),
+        done once r <= eps_pri, s <= eps_dual and settled (NEWLY marks the first time, which
+        records it, r, s, rho_old / length); then rho = rho_table[it % T] for this iteration
+        and the u-step's CG tolerance per lane,
+            atol = min(cg_fraction (eps_dual_abs + dy), eps_dual / 10) / (shift + scale rho),
+            atol = min(atol, cg_primal r (alpha + rho) / (shift + scale rho))   (it > 0),
+        into atol2 (squared); clears acc for the iteration.
+        """
+        b = wp.tid()
+        it = step[IT]
+        rho_new = rho_table[it % rho_table.shape[0]]
+        rho_old = rho[b]
+        due = it > 0 and it % window == 0
+        eps_dual_abs = lane[EPS_DUAL_ABS, b]
+        load_norm = lane[LOAD_NORM, b]
+        moved = lane[MOVED, b]
+        top = lane[UMAX, b]
+        settled = lane[SETTLED, b]
+        done = lane[DONE, b]
+        newly = V()
+        r_last = lane[R_LAST, b]
+        s_last = lane[S_LAST, b]
+        eps_pri = lane[EPS_PRI, b]
+        eps_dual = lane[EPS_DUAL, b]
+        dual_scale = lane[DUAL_SCALE, b]
+        rho_last = lane[RHO_LAST, b]
+        it_out = lane[IT_OUT, b]
+        r_out = lane[R_OUT, b]
+        s_out = lane[S_OUT, b]
+        rho_out = lane[RHO_OUT, b]
+        a2 = V()
+        rv = V()
+        for l in range(W):
+            if it > 0:
+                r = wp.sqrt(acc[R2, b][l])
+                s = rho_old[l] * wp.sqrt(acc[S2, b][l])
+                eps_pri[l] = eps_pri_abs + eps_rel * wp.sqrt(wp.max(acc[G2, b][l], acc[Z2, b][l]))
+                dy = wp.max(wp.sqrt(acc[DY2, b][l]), load_norm[l])
+                eps_dual[l] = eps_dual_abs[l] + eps_rel_dual * dy
+                dual_scale[l] = eps_dual_abs[l] + dy
+                if due:
+                    settled[l] = zero
+                    if moved[l] == zero or moved[l] <= eps_change * top[l]:
+                        settled[l] = one
+                    moved[l] = zero
+                    top[l] = zero
+                if done[l] == zero and r <= eps_pri[l] and s <= eps_dual[l] and settled[l] == one:
+                    newly[l] = one
+                    done[l] = one
+                    it_out[l] = scalar(it)
+                    r_out[l] = r
+                    s_out[l] = s
+                    rho_out[l] = rho_old[l] / length
+                r_last[l] = r
+                s_last[l] = s
+                rho_last[l] = rho_old[l] / length
+            den = shift + scale * rho_new
+            atol = wp.min(cg_fraction * dual_scale[l], scalar(0.1) * eps_dual[l]) / den
+            if it > 0:
+                atol = wp.min(atol, cg_primal * r_last[l] * (alpha + rho_new) / den)
+            a2[l] = atol * atol
+            rv[l] = rho_new
+        lane[MOVED, b] = moved
+        lane[UMAX, b] = top
+        lane[SETTLED, b] = settled
+        lane[DONE, b] = done
+        lane[NEWLY, b] = newly
+        lane[R_LAST, b] = r_last
+        lane[S_LAST, b] = s_last
+        lane[EPS_PRI, b] = eps_pri
+        lane[EPS_DUAL, b] = eps_dual
+        lane[DUAL_SCALE, b] = dual_scale
+        lane[RHO_LAST, b] = rho_last
+        lane[IT_OUT, b] = it_out
+        lane[R_OUT, b] = r_out
+        lane[S_OUT, b] = s_out
+        lane[RHO_OUT, b] = rho_out
+        atol2[b] = a2
+        rho[b] = rv
+        for q in range(5):
+            acc[q, b] = V()
+
+    @wp.kernel(enable_backward=False, module=module)
+    def freeze_lanes(lane: wp.array2d(dtype=V), source: wp.array2d(dtype=V), frozen: wp.array2d(dtype=V),
+                     chunk: int, rows: int):
+        """frozen = source on the lanes whose test first held at this check (lane row NEWLY)."""
+        c, b = wp.tid()
+        newly = lane[NEWLY, b]
+        if newly == V():
+            return
+        i0, i1 = chunk_rows(c, chunk, rows)
+        for i in range(i0, i1):
+            f = frozen[i, b]
+            v = source[i, b]
+            for l in range(W):
+                if newly[l] != zero:
+                    f[l] = v[l]
+            frozen[i, b] = f
+
+    @wp.kernel(enable_backward=False, module=module)
+    def advance(step: wp.array(dtype=wp.int32), cg_counters: wp.array(dtype=wp.int32)):
+        """End of an iteration: it += 1, and the u-step's CG iterations into CG_TOTAL."""
+        step[IT] = step[IT] + 1
+        step[CG_TOTAL] = step[CG_TOTAL] + cg_counters[0]
+
+    return types.SimpleNamespace(element_step=element_step, vertex_divergence=vertex_divergence, u_rhs=u_rhs,
+                                 change_measure=change_measure, admm_check=admm_check, freeze_lanes=freeze_lanes,
+                                 advance=advance, V=V, V3=V3)

@@ -2,7 +2,8 @@
 
 :class:`PenaltySchedule` is the penalty rho at iteration k; :class:`ChangeTest` and
 :class:`ExtrapolatedChangeTest` are the change tests that, besides the residual test, decide
-when a column (a source set, or the whole all-pairs matrix) stops. Both solvers build them
+when a column (a source set, or the whole all-pairs matrix) stops (DistanceSolver runs
+ChangeTest's rule on the device, kernels/admm.py, checked against it by the tests). Both solvers build them
 from :data:`warp_regdist.tolerances` (overridable per call with ``tolerances.override``);
 ``DistanceSolver.solve``, ``solve_many`` and ``all_pairs`` take ``schedule=`` to swap the
 schedule for a :class:`PenaltySchedule` or any object with ``rho(k)`` and ``offset_for(penalty)``.
@@ -117,16 +118,6 @@ class ChangeTest:
     def _unsettle(self):
         self.settled[:] = False
 
-    def _columns(self):
-        """The per-column arrays (columns last) that move with the columns."""
-        return [self.snapshot, self.settled]
-
-    def permute(self, dst, src):
-        """Columns src move to dst (the single-source batch compaction)."""
-        for values in self._columns():
-            if values is not None:
-                values[..., dst] = values[..., src]
-
     def state(self):
         """The test's state as a dict of arrays: ``snapshot`` itself (None before any update; not
         a copy, it can be as large as the all-pairs matrix) and copies of the per-column flags."""
@@ -170,9 +161,6 @@ class ExtrapolatedChangeTest(ChangeTest):
     def _unsettle(self):
         self.window_change[:] = self.change[:] = math.inf
         self.settled[:] = self.change <= self.eps
-
-    def _columns(self):
-        return super()._columns() + [self.window_change, self.change]
 
     def state(self):
         return dict(snapshot=self.snapshot, window_change=self.window_change.copy(), change=self.change.copy())

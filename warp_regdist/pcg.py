@@ -196,6 +196,31 @@ class BatchedPCG:
             self.blocks = blocks
             self._program = None
 
+    def capture_solve(self, rhs, x, mask):
+        """Inside the caller's graph capture: record one solve of these arrays (the start launches,
+        then one CG iteration while ``running`` is nonzero, a ``wp.capture_while``), with the
+        tolerances left by :meth:`configure` and in ``atol2`` (squared, per lane) when it replays."""
+        start, body = self._launches(rhs, x, mask)[:2]
+        for launch in start:
+            launch.launch()
+        wp.capture_while(self.running, lambda: [launch.launch() for launch in body])
+
+    def configure(self, rtol, max_iterations):
+        """Set the relative tolerance and the iteration cap of the next solves run by :meth:`launches`."""
+        _write(self.rtol2, rtol * rtol)
+        _write(self.counters, [0, min(int(max_iterations), 2**31 - 1)])
+
+    def run(self, rhs, x, mask):
+        """One solve by the recorded launches (no graph), the host reading ``running`` every
+        ``check_every`` iterations; tolerances as left by :meth:`configure` and in ``atol2``."""
+        start, body = self._launches(rhs, x, mask)[:2]
+        for launch in start:
+            launch.launch()
+        while self._is_running():
+            for _ in range(self.check_every):
+                for launch in body:
+                    launch.launch()
+
     def _launches(self, rhs, x, mask):
         """(start, body, graph) for these arrays: start = reset, init, check; body = one CG iteration."""
         key = tuple((a.ptr, a.shape, a.strides) for a in (rhs, x, mask))
@@ -219,20 +244,14 @@ class BatchedPCG:
                         *state, chunk, n),
                     rec(k.cg_update, dim, x, self.r, self.p, self.q, self.acc, self.converged, *state, chunk, n),
                     rec(k.cg_check, 1, *check, 1, blocks)]
-            graph = self._capture(start, body) if self.capture else None
-            self._program = (key, start, body, graph)
+            self._program = (key, start, body, None)
+            if self.capture:
+                wp.capture_begin(self.device, force_module_load=False)
+                try:
+                    self.capture_solve(rhs, x, mask)
+                finally:
+                    self._program = (key, start, body, wp.capture_end(self.device))
         return self._program[1:]
-
-    def _capture(self, start, body):
-        """One graph: the start launches, then ``body`` while ``running`` is nonzero."""
-        wp.capture_begin(self.device, force_module_load=False)
-        try:
-            for launch in start:
-                launch.launch()
-            wp.capture_while(self.running, lambda: [launch.launch() for launch in body])
-        finally:
-            graph = wp.capture_end(self.device)
-        return graph
 
     def _is_running(self):
         return bool(self.running.numpy()[0])
@@ -262,18 +281,12 @@ class BatchedPCG:
             raise ValueError(f"expected atol a scalar or a ({lanes},) array, got shape {atol.shape}")
         self._atol2_host.reshape(-1)[:lanes] = np.square(atol)
         _write(self.atol2, self._atol2_host)
-        _write(self.rtol2, rtol * rtol)
-        _write(self.counters, [0, min(int(max_iterations), 2**31 - 1)])
-        start, body, graph = self._launches(rhs, x, mask)
+        self.configure(rtol, max_iterations)
+        graph = self._launches(rhs, x, mask)[2]
         if graph is not None:
             wp.capture_launch(graph)
         else:
-            for launch in start:
-                launch.launch()
-            while self._is_running():
-                for _ in range(self.check_every):
-                    for launch in body:
-                        launch.launch()
+            self.run(rhs, x, mask)
         it = int(self.counters.numpy()[ITERATION])
         rr = self.acc.numpy().reshape(3, 3, -1)[it % 3, RR, :lanes].astype(np.float64)
         bb = self.bb.numpy().reshape(-1)[:lanes].astype(np.float64)

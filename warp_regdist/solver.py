@@ -29,15 +29,16 @@ import numpy as np
 import warp as wp
 from scipy.optimize import OptimizeResult, OptimizeWarning
 
-from .kernels.admm import admm_kernels
-from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, chunk_size, lane_kernels, lane_type, lane_width, row_dim
+from .kernels.admm import (CG_TOTAL, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
+                           R_LAST, R_OUT, RHO_LAST, RHO_OUT, S_LAST, S_OUT, admm_kernels)
+from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width, row_dim
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
 from .processes import WorkerPool, processes_available
-from .admm import ChangeTest, PenaltySchedule, check_schedule
+from .admm import PenaltySchedule, check_schedule
 from .arguments import check_weight, parse_device, parse_workers
 from .regularizers import build_regularizer
 from .tolerances import tolerances
@@ -76,6 +77,17 @@ class DistanceResult(OptimizeResult):
         warm start (``initial=``).
     """
 
+
+_CHECK_EVERY = {False: 1, True: 10}
+"""ADMM iterations between the host's reads of the per-lane test state, on the CPU and on CUDA
+(the device decides and freezes each column at its iteration; the host collects and compacts)."""
+
+_CAPTURE = True
+"""On the CPU, replay each batch's iteration as one captured Warp graph (False: the same recorded
+launches one by one, the host reading the CG loop's flag; the same numbers)."""
+
+_RHO_TABLE = 64
+"""Entries of the device's penalty table rho_table (iteration it at it % _RHO_TABLE), > _CHECK_EVERY."""
 
 _PROCESS_WORK = 100_000
 """Vertices x source sets from which solve_many starts worker processes by default (spot x 21)."""
@@ -341,9 +353,13 @@ class DistanceSolver:
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
-                # solve_many parallelizes with processes: on the CPU the CG loop can be one captured graph
+                # the device-resident stopping test (kernels/admm.py): u at the last change test, the
+                # per-lane state, the iterates frozen when a lane's test first held, counters, penalties
+                snapshot=wp.zeros((n, nb), dtype=V, device=dev), u_out=wp.zeros((n, nb), dtype=V, device=dev),
+                lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
+                rho_table=wp.zeros(_RHO_TABLE, dtype=self.scalar, device=dev), y_out=None,
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
-                               self.scalar, W, nb, dev, preconditioner=self._hierarchy, capture=dev.is_cpu),
+                               self.scalar, W, nb, dev, preconditioner=self._hierarchy),
             )
             self._workspaces[key] = ws
         return self._workspaces[key]
@@ -351,7 +367,12 @@ class DistanceSolver:
     def _admm(self, sets, ws, verbose, start=None, keep_duals=False, schedule=None):
         """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks), from
         zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), with the
-        penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``)."""
+        penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``).
+
+        The stopping test, the penalty and the CG tolerances are decided on the device (kernels/admm.py);
+        the host reads the per-lane flags every ``_CHECK_EVERY`` iterations to collect the columns done
+        (frozen on the device at the iteration their test held) and to compact the batch.
+        """
         t0 = time.perf_counter()
         tol = tolerances
         factor = self.regularizer.tolerance_factor
@@ -361,10 +382,9 @@ class DistanceSolver:
         W = ws["width"]
         # u-step right-hand side divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
         shift, scale = (self.alpha, 1.0) if self._scaled else (1.0, 0.0)
-        batch = _ColumnBatch(self, ws, W, nb, shift, scale)
 
         # Slot j (lane j % W of block j // W) holds column slot_col[j] of the batch, -1 when it is
-        # free: padding, or a column already frozen at convergence (its lane still computes).
+        # free: padding, or a column already collected (its lane still computes).
         slot_col = np.where(np.arange(nb * W) < k, np.arange(nb * W), -1)
         free = np.zeros((n, nb * W))
         for j in range(nb * W):
@@ -372,7 +392,7 @@ class DistanceSolver:
             free[:, j] = reach
             free[src, j] = 0.0
         ws["mask"].assign(free.reshape(n, nb, W))
-        for name in ("u", "z", "y", "Dy", "Dz"):
+        for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "step"):
             ws[name].zero_()
         L = self.operators.length_scale
         A = self.operators.total_volume
@@ -381,96 +401,91 @@ class DistanceSolver:
         # iteration it runs with rho = schedule.rho(it + offset); a warm start continues the
         # schedule from the penalty it carries. The change test compares with u0 (zero or the start's).
         offset = 0.0
-        snapshot = np.zeros((n, nb * W))
         if start is not None:
             u0, y0, penalty = start
             u0 = np.where(np.isfinite(u0), u0, 0.0) * free[:, :k]
-            snapshot[:, :k] = u0
             ws["u"].assign(_lanes(u0, nb, W))
+            ws["snapshot"].assign(_lanes(u0, nb, W))
             if y0 is not None:
                 ws["y"].assign(_lanes(y0, nb, W))
                 ws["z"].assign(_lanes(self._project_gradient(u0), nb, W))
                 offset = schedule.offset_for(L * float(np.median(penalty)))
-        change = ChangeTest(tol.change_window, factor * tol.eps_change, nb * W)
-        change.reset(snapshot)
-        rho = schedule.rho(offset)
-        ws["rho"].assign(np.full((nb, W), rho))
+        if keep_duals and ws["y_out"] is None:
+            ws["y_out"] = wp.zeros_like(ws["y"])
 
         eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
-        eps_pri_abs = math.sqrt(3 * m) * eps_abs * math.sqrt(A)
         # per slot: (eps_abs sqrt(n_free) A, |mask A_V|). The dual residual is measured against
         # max(|mask D y|, |mask A_V|): at the optimum A_V = alpha W u + D y on the free vertices,
         # and y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat, boundary sources
         # on a coarse mesh, a smooth Hessian-regularized u), so |D y| alone can vanish and a
         # test relative to it never holds.
-        slot_values = np.stack([np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A,
-                                np.sqrt(np.square(self.operators.vertex_volumes) @ free)])
-        eps_dual_abs, load_norm = slot_values
+        eps_dual_abs = np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A
+        load_norm = np.sqrt(np.square(self.operators.vertex_volumes) @ free)
+        lane = np.zeros((LANE_ROWS, nb * W))
+        lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
+        lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, eps_dual_abs + eps_rel_dual * load_norm
+        ws["lane"].assign(lane.reshape(LANE_ROWS, nb, W))
+        ws["pcg"].configure(tol.cg_rtol, tol.cg_max_iterations)
+        rho_table = ws["rho_table"].numpy() if self.device.is_cpu else np.zeros(_RHO_TABLE)
+
+        def penalties(first, count):
+            """rho of iterations first .. first + count - 1 into the device's table."""
+            its = np.arange(first, first + count)
+            rho_table[its % _RHO_TABLE] = [schedule.rho(i + offset) for i in its]
+            if not self.device.is_cpu:
+                ws["rho_table"].assign(rho_table)
+
+        batch = _ColumnBatch(self, ws, W, nb, shift, scale, tol.change_window, dict(
+            eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
+            eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
+            # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
+            # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
+            cg_primal=tol.cg_primal_fraction * L ** (0.5 * self.mesh.element_dim - 1.0),
+            alpha=self.alpha, shift=shift, scale=scale, length=L))
 
         iterations = np.full(k, -1)
         out = np.zeros((n, k))
         y_out = np.zeros((m, 3, k)) if keep_duals else None
         r_out, s_out, rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
-        live = nb * W
-        r = s = np.zeros(live)
-        eps_dual, dual_scale = eps_dual_abs + eps_rel_dual * load_norm, eps_dual_abs + load_norm
-        cg_total = 0
         system_rho = None
+        penalties(0, 1)
+        batch.check()
         it = 0
         last_print = t0
-        for it in range(tol.max_iterations + 1):
-            batch.divergence.launch()
-            if it > 0:
-                acc = ws["acc"].numpy().reshape(5, -1)[:, :live]
-                r = np.sqrt(acc[R2])
-                s = rho * np.sqrt(acc[S2])
-                eps_pri = eps_pri_abs + eps_rel * np.sqrt(np.maximum(acc[G2], acc[Z2]))
-                dy = np.maximum(np.sqrt(acc[DY2]), load_norm[:live])
-                dual_scale = eps_dual_abs[:live] + dy
-                eps_dual = eps_dual_abs[:live] + eps_rel_dual * dy
-                if change.due(it):
-                    change.update(ws["u"].numpy().reshape(n, -1)[:, :live])
-                # <=: a source-only column has r = s = eps = 0 and u = 0
-                done = (r <= eps_pri) & (s <= eps_dual) & change.settled[:live]
-                new = np.flatnonzero(done & (slot_col[:live] >= 0))
-                if new.size:  # freeze each column at the iterate that met its stopping test
-                    cols = slot_col[new]
-                    iterations[cols] = it
-                    self._freeze(ws, new, cols, out, y_out)
-                    r_out[cols], s_out[cols], rho_out[cols] = r[new], s[new], rho / L
-                    slot_col[new] = -1
-                if verbose and (time.perf_counter() - last_print > 2.0):
-                    last_print = time.perf_counter()
-                    print(f"  ADMM iteration {it}: {np.count_nonzero(iterations >= 0)}/{k} converged, "
-                          f"max r/eps_pri {_max_ratio(r, eps_pri):.3g}, max s/eps_dual {_max_ratio(s, eps_dual):.3g}, "
-                          f"{last_print - t0:.1f} s", file=sys.stderr)
-                if np.all(iterations >= 0) or it == tol.max_iterations or interrupt.requested():
-                    break
-                if new.size:
-                    per_slot = np.stack([r, s, eps_dual, dual_scale])  # this iteration's, moved with the columns
-                    live = batch.compact(slot_col, change, slot_values, per_slot)
-                    r, s, eps_dual, dual_scale = per_slot[:, :live]
+        while True:
+            state = ws["lane"].numpy().reshape(LANE_ROWS, -1)
+            live = batch.blocks * W
+            new = np.flatnonzero((state[DONE, :live] > 0) & (slot_col[:live] >= 0))
+            if new.size:  # each column as frozen at the iterate that met its stopping test
+                cols = slot_col[new]
+                iterations[cols] = state[IT_OUT, new]
+                self._collect(ws, True, new, cols, out, y_out)
+                r_out[cols], s_out[cols], rho_out[cols] = state[R_OUT, new], state[S_OUT, new], state[RHO_OUT, new]
+                slot_col[new] = -1
+            if verbose and (time.perf_counter() - last_print > 2.0):
+                last_print = time.perf_counter()
+                print(f"  ADMM iteration {it}: {np.count_nonzero(iterations >= 0)}/{k} converged, "
+                      f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
+                      f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {last_print - t0:.1f} s",
+                      file=sys.stderr)
+            if np.all(iterations >= 0) or it == tol.max_iterations or interrupt.requested():
+                break
+            if new.size:
+                batch.compact(slot_col)
+            for _ in range(min(_CHECK_EVERY[self.device.is_cuda], tol.max_iterations - it)):
                 rho = schedule.rho(it + offset)
-                ws["rho"].assign(np.full((nb, W), rho))
-            if not self._scaled and rho != system_rho:
-                system_rho = rho
-                ws["pcg"].set_matrix(self.regularizer.system(rho))
-            ws["acc"].zero_()
-            batch.u_rhs.launch()
-            cg_atol = np.minimum(factor * tol.cg_fraction * dual_scale, 0.1 * eps_dual) / (shift + scale * rho)
-            if it > 0:  # below a fraction of r too, in the units of the u-step's (alpha + rho) W_D u:
-                # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
-                cg_atol = np.minimum(cg_atol, tol.cg_primal_fraction * r * L ** (0.5 * self.mesh.element_dim - 1.0)
-                                     * (self.alpha + rho) / (shift + scale * rho))
-            cg_it, _ = ws["pcg"].solve(ws["rhs"], ws["u"], ws["mask"], tol.cg_rtol, tol.cg_max_iterations, cg_atol)
-            cg_total += cg_it
-            batch.element_step.launch()
+                if not self._scaled and rho != system_rho:
+                    system_rho = rho
+                    ws["pcg"].set_matrix(self.regularizer.system(rho))
+                penalties(it + 1, 1)
+                batch.iterate()
+                it += 1
 
-        late = np.flatnonzero(slot_col[:live] >= 0)
+        late = np.flatnonzero(slot_col[:batch.blocks * W] >= 0)
         if late.size:
             cols = slot_col[late]
-            self._freeze(ws, late, cols, out, y_out)
-            r_out[cols], s_out[cols], rho_out[cols] = r[late], s[late], rho / L
+            self._collect(ws, False, late, cols, out, y_out)
+            r_out[cols], s_out[cols], rho_out[cols] = state[R_LAST, late], state[S_LAST, late], state[RHO_LAST, late]
         u = out
         for j, (src, reach) in enumerate(sets):
             u[~reach, j] = np.inf
@@ -478,19 +493,21 @@ class DistanceSolver:
         converged = iterations >= 0
         res = DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
-            primal_residual=r_out, dual_residual=s_out, penalty=rho_out, cg_iterations=cg_total,
-            seconds=time.perf_counter() - t0,
+            primal_residual=r_out, dual_residual=s_out, penalty=rho_out,
+            cg_iterations=int(ws["step"].numpy()[CG_TOTAL]), seconds=time.perf_counter() - t0,
             interrupted=bool(not converged.all() and it < tol.max_iterations and interrupt.requested()))
         if keep_duals:
             res["duals"] = y_out
         return res
 
     @staticmethod
-    def _freeze(ws, slots, cols, out, y_out):
-        """Copy the iterate u (and y when ``y_out`` is given) of ``slots`` into columns ``cols``."""
-        out[:, cols] = ws["u"].numpy().reshape(out.shape[0], -1)[:, slots]
+    def _collect(ws, frozen, slots, cols, out, y_out):
+        """Columns ``cols`` of ``out`` (n, k) (and of ``y_out`` (m, 3, k) unless None) from lanes
+        ``slots``: of the iterates frozen on the device, or with ``frozen`` False of the current ones."""
+        u, y = ("u_out", "y_out") if frozen else ("u", "y")
+        out[:, cols] = ws[u].numpy().reshape(out.shape[0], -1)[:, slots]
         if y_out is not None:
-            y_out[:, :, cols] = ws["y"].numpy().reshape(y_out.shape[0], 3, -1)[:, :, slots]
+            y_out[:, :, cols] = ws[y].numpy().reshape(y_out.shape[0], 3, -1)[:, :, slots]
 
     def _project_gradient(self, u):
         """z = Proj_{|.|<=1}(G u) per element and column: (n, k) -> (m, 3, k)."""
@@ -524,7 +541,13 @@ def _max_ratio(a, b):
 
 
 class _ColumnBatch:
-    """The recorded ADMM launches of one batch, over its first ``blocks`` column blocks.
+    """The ADMM iteration of one batch as recorded launches over its first ``blocks`` column blocks,
+    on the CPU captured as one Warp graph (the u-step's CG loop a ``wp.capture_while``).
+
+    :meth:`iterate` runs iteration it: the u-step (right-hand side, PCG), the element step,
+    it += 1, then the top of iteration it + 1: the divergences, the change test, the stopping
+    test with the next penalty and CG tolerances, and the freezing of the lanes whose test
+    first held (kernels/admm.py). :meth:`check` runs that top alone (iteration 0).
 
     When columns converge, :meth:`compact` moves the columns still running into the freed
     lanes of the first blocks and drops the emptied blocks from every launch, so a batch
@@ -532,45 +555,83 @@ class _ColumnBatch:
     iterations times the batch size.
     """
 
-    def __init__(self, solver, ws, W, nb, shift, scale):
+    def __init__(self, solver, ws, W, nb, shift, scale, window, settings):
         self.solver, self.ws, self.W = solver, ws, W
-        self.shift, self.scale = shift, scale
+        self.shift, self.scale, self.window, self.settings = shift, scale, window, settings
         self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
         self.move = lane_kernels(solver.scalar, W).move_columns
+        self.capture = _CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
         self._record(nb)
 
     def _record(self, blocks):
-        """Record the three ADMM launches over column blocks 0..blocks-1 (their arguments stay
-        fixed for the whole solve: rho lives in a device array)."""
+        """Record the launches over column blocks 0..blocks-1 (their arguments stay fixed for the
+        whole solve: rho, the tolerances and the counters live in device arrays) and capture them."""
         sv, ws, kern = self.solver, self.ws, self.kernels
         n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
         dev, chunk = sv.device, chunk_size(sv.device)
         self.blocks = blocks
-        elem_dim = row_dim(m, chunk, blocks)
-        vert_dim = row_dim(n, chunk, blocks)
-        self.divergence = wp.launch(kern.vertex_divergence, vert_dim, device=dev, record_cmd=True, inputs=[
-            sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"], ws["y"], ws["z"],
-            ws["Dy"], ws["Dz"], ws["acc"], chunk, n])
-        self.u_rhs = wp.launch(kern.u_rhs, vert_dim, device=dev, record_cmd=True, inputs=[
-            sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"], sc(self.shift), sc(self.scale),
-            ws["rhs"], chunk, n])
-        self.element_step = wp.launch(kern.element_step, elem_dim, device=dev, record_cmd=True, inputs=[
-            sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"], sc(tolerances.relaxation),
-            ws["z"], ws["y"], ws["acc"], chunk, m])
-        ws["pcg"].set_active_blocks(blocks)
+        pcg = ws["pcg"]
+        pcg.set_active_blocks(blocks)
 
-    def compact(self, slot_col, change, *slot_values):
-        """Move running columns out of the last blocks when they fit in fewer; returns the live slots.
+        def rec(kernel, dim, *args):
+            return wp.launch(kernel, dim, device=dev, record_cmd=True, inputs=list(args))
 
-        ``slot_col`` (slots,) maps slot -> column (-1: free), ``change`` is the batch's
-        :class:`~warp_regdist.admm.ChangeTest` and each of ``slot_values`` (c, >= live slots)
-        holds per-slot host values; all are permuted in place like the device state.
+        elem_dim, vert_dim = row_dim(m, chunk, blocks), row_dim(n, chunk, blocks)
+        st = self.settings
+        self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"],
+                          sc(self.shift), sc(self.scale), ws["rhs"], chunk, n)
+        self.after_u = [
+            rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"],
+                sc(tolerances.relaxation), ws["z"], ws["y"], ws["acc"], chunk, m),
+            rec(kern.advance, 1, ws["step"], pcg.counters)]
+        self.top = [
+            rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"],
+                ws["y"], ws["z"], ws["Dy"], ws["Dz"], ws["acc"], chunk, n),
+            rec(kern.change_measure, vert_dim, ws["u"], ws["snapshot"], ws["step"], self.window, ws["lane"], chunk, n),
+            rec(kern.admm_check, blocks, ws["acc"], ws["lane"], ws["rho"], ws["step"], ws["rho_table"], self.window,
+                *(sc(st[key]) for key in ("eps_pri_abs", "eps_rel", "eps_rel_dual", "eps_change", "cg_fraction",
+                                          "cg_primal", "alpha", "shift", "scale", "length")), pcg.atol2),
+            rec(kern.freeze_lanes, vert_dim, ws["lane"], ws["u"], ws["u_out"], chunk, n)]
+        if ws["y_out"] is not None:
+            y, y_out = (a.reshape((3 * m, a.shape[2])) for a in (ws["y"], ws["y_out"]))
+            self.top.append(rec(kern.freeze_lanes, row_dim(3 * m, chunk, blocks), ws["lane"], y, y_out, chunk, 3 * m))
+        self.graph = None
+        if self.capture:
+            wp.capture_begin(dev, force_module_load=False)
+            try:
+                self._launch_iteration(pcg.capture_solve)
+            finally:
+                self.graph = wp.capture_end(dev)
+
+    def _launch_iteration(self, solve):
+        self.u_step.launch()
+        solve(self.ws["rhs"], self.ws["u"], self.ws["mask"])
+        for launch in self.after_u + self.top:
+            launch.launch()
+
+    def check(self):
+        """The top of the current iteration alone (divergences, change and stopping tests, freezing)."""
+        for launch in self.top:
+            launch.launch()
+
+    def iterate(self):
+        """One iteration and the top of the next (the graph's replay on the CPU)."""
+        if self.graph is not None:
+            wp.capture_launch(self.graph)
+        else:
+            self._launch_iteration(self.ws["pcg"].run)
+
+    def compact(self, slot_col):
+        """Move running columns out of the last blocks when they fit in fewer.
+
+        ``slot_col`` (slots,) maps slot -> column (-1: free); it is permuted in place like the
+        device state (iterates, mask, D y, D z, change-test snapshot, per-lane test state, CG tolerances).
         """
         W, live = self.W, self.blocks * self.W
         running = np.flatnonzero(slot_col[:live] >= 0)
         blocks = max(1, -(-running.size // W))
         if blocks == self.blocks:
-            return live
+            return
         keep = blocks * W
         src = running[running >= keep]
         dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
@@ -581,14 +642,10 @@ class _ColumnBatch:
             d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
             nb = ws["u"].shape[1]
             # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
-            for name in ("u", "mask", "z", "y", "Dy", "Dz"):
-                a = ws[name]
-                a2 = a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
+            # and the CG tolerances that the last test set for the next u-step
+            for a in [ws[name] for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "lane")] + [ws["pcg"].atol2]:
+                a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
                 wp.launch(self.move, row_dim(a2.shape[0], chunk), device=dev,
                           inputs=[a2, s_arr, d_arr, src.size, chunk, a2.shape[0]])
             slot_col[dst], slot_col[src] = slot_col[src], -1
-            for values in slot_values:
-                values[:, dst] = values[:, src]
-            change.permute(dst, src)
         self._record(blocks)
-        return keep
