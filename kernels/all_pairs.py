@@ -8,6 +8,11 @@ The element state is stored combined as v = Y / rho_v + h (the point that the la
 z-step projected), from which Z = Proj(v) and Y = rho_v (v - Proj(v)) are recovered: the
 projection onto the unit ball leaves Y / rho_v and Z on complementary sides, so one
 (3m, n) array holds both (half the memory of Z and Y).
+
+D = G^T M_F is applied by scattering from the element step (the single-source kernels gather
+per vertex): a gather would need Z and Y per element, that is one projection of v per
+incident vertex. Measured on cat_rr (float32, 16 lanes, one core): element step with the
+scatter 297-344 ms, without it 169-181 ms plus a projecting gather 151-233 ms.
 """
 
 import functools
