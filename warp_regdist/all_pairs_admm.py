@@ -196,7 +196,7 @@ class _Part:
         self.scalar = sc
         dev = arrays["X"].device
         n, m, nb, W = setup.n, setup.m, setup.nb, setup.W
-        chunk = chunk_size(dev)
+        chunk = chunk_size(dev, nb)
         k = all_pairs_kernels(sc, W)
         b0, b1 = setup.blocks[t], setup.blocks[t + 1]
         i0, i1 = setup.rows[t], setup.rows[t + 1]
