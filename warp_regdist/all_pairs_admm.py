@@ -150,6 +150,7 @@ class _Setup:
         ops = build_operators(mesh)
         self.elements = mesh.elements.astype(np.int32)
         self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
+        self.divergence = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()  # D = G^T M_F
         self.stiffness = ops.stiffness.tocsr()
         self.A, self.L = ops.total_volume, ops.length_scale
         self.alpha = alpha_hat * ops.length_scale
@@ -334,12 +335,7 @@ class _SymmetricADMM:
     def divergences_from_element_state(self):
         """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
         what the last element step scattered (D = G^T M_F, (n, 3m))."""
-        s = self.setup
-        m, n = self.m, self.n
-        corners = s.elements.astype(np.int64)
-        D = sp.csr_matrix(((s.volumes[:, None, None] * s.basis).ravel(),
-                           (np.repeat(corners.ravel(), 3), (3 * np.arange(m)[:, None, None] + np.arange(3)).repeat(3, 1).ravel())),
-                          shape=(n, 3 * m))
+        D, m = self.setup.divergence, self.m
         v = self.get("v").astype(np.float64)
         z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
         shape = self.arrays["DZ"].numpy().shape

@@ -87,7 +87,8 @@ _CAPTURE = True
 launches one by one, the host reading the CG loop's flag; the same numbers)."""
 
 _RHO_TABLE = 64
-"""Entries of the device's penalty table rho_table (iteration it at it % _RHO_TABLE), > _CHECK_EVERY."""
+"""Entries of the device's penalty table rho_table (iteration it at it % _RHO_TABLE; the host writes
+each iteration's entry just before the replay that reads it)."""
 
 _PROCESS_WORK = 100_000
 """Vertices x source sets from which solve_many starts worker processes by default (spot x 21)."""
@@ -428,14 +429,13 @@ class DistanceSolver:
         ws["pcg"].configure(tol.cg_rtol, tol.cg_max_iterations)
         rho_table = ws["rho_table"].numpy() if self.device.is_cpu else np.zeros(_RHO_TABLE)
 
-        def penalties(first, count):
-            """rho of iterations first .. first + count - 1 into the device's table."""
-            its = np.arange(first, first + count)
-            rho_table[its % _RHO_TABLE] = [schedule.rho(i + offset) for i in its]
+        def penalty_ahead(it):
+            """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
+            rho_table[it % _RHO_TABLE] = schedule.rho(it + offset)
             if not self.device.is_cpu:
                 ws["rho_table"].assign(rho_table)
 
-        batch = _ColumnBatch(self, ws, W, nb, shift, scale, tol.change_window, dict(
+        batch = _ColumnBatch(self, ws, W, nb, tol.change_window, dict(
             eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
             eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
             # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
@@ -448,7 +448,7 @@ class DistanceSolver:
         y_out = np.zeros((m, 3, k)) if keep_duals else None
         r_out, s_out, rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
         system_rho = None
-        penalties(0, 1)
+        penalty_ahead(0)
         batch.check()
         it = 0
         last_print = t0
@@ -477,7 +477,7 @@ class DistanceSolver:
                 if not self._scaled and rho != system_rho:
                     system_rho = rho
                     ws["pcg"].set_matrix(self.regularizer.system(rho))
-                penalties(it + 1, 1)
+                penalty_ahead(it + 1)
                 batch.iterate()
                 it += 1
 
@@ -555,9 +555,9 @@ class _ColumnBatch:
     iterations times the batch size.
     """
 
-    def __init__(self, solver, ws, W, nb, shift, scale, window, settings):
+    def __init__(self, solver, ws, W, nb, window, settings):
         self.solver, self.ws, self.W = solver, ws, W
-        self.shift, self.scale, self.window, self.settings = shift, scale, window, settings
+        self.window, self.settings = window, settings
         self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
         self.move = lane_kernels(solver.scalar, W).move_columns
         self.capture = _CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
@@ -579,7 +579,7 @@ class _ColumnBatch:
         elem_dim, vert_dim = row_dim(m, chunk, blocks), row_dim(n, chunk, blocks)
         st = self.settings
         self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"],
-                          sc(self.shift), sc(self.scale), ws["rhs"], chunk, n)
+                          sc(st["shift"]), sc(st["scale"]), ws["rhs"], chunk, n)
         self.after_u = [
             rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"],
                 sc(tolerances.relaxation), ws["z"], ws["y"], ws["acc"], chunk, m),
