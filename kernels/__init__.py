@@ -7,8 +7,10 @@ block j // W. W = 1 for one column, so single-source solves carry no padding. Ke
 are built by cached factories per (scalar, W), one Warp module per family and type, so
 each is compiled once and then loaded from the kernel cache.
 
-Each thread handles a chunk of ``chunk`` consecutive rows of one column block and adds
-its partial sums with a single atomic (chunk 128 on the CPU, 1 on CUDA: lanes.chunk_size).
+Each thread of a row loop handles ``chunk`` consecutive rows of ``group`` column blocks and
+adds its partial sums per block with a single atomic: one row of one block on CUDA; on the
+CPU 128 rows of one block, or one row of every block when there are many
+(``lanes.thread_span``).
 """
 
-from .lanes import lane_type, chunk_size  # noqa: F401
+from .lanes import lane_type, thread_span  # noqa: F401

@@ -20,7 +20,7 @@ import types
 
 import warp as wp
 
-from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, lane_funcs, lane_type
+from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, group_blocks, lane_funcs, lane_type
 
 # Entries of the scalar accumulator (5,) of the consensus step, weighted by A_V[i] A_V[j].
 RX2, X2, U2, SX2, H2 = 0, 1, 2, 3, 4
@@ -43,7 +43,7 @@ def all_pairs_kernels(scalar, W):
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
                      X: wp.array2d(dtype=V), v: wp.array3d(dtype=V), rho_v: scalar, rho: scalar,
                      relaxation: scalar, DZ_acc: wp.array2d(dtype=V), DY_acc: wp.array2d(dtype=V),
-                     acc: wp.array2d(dtype=V), chunk: int, m: int):
+                     acc: wp.array2d(dtype=V), chunk: int, group: int, m: int):
         """Over-relaxed z- and y-steps of the column gradients on a chunk of elements:
 
             Z_old = Proj(v), Y = rho_v (v - Z_old), g = (G X)_e, h = a g + (1 - a) Z_old,
@@ -52,72 +52,76 @@ def all_pairs_kernels(scalar, W):
         DZ_acc and DY_acc (zero on entry; atomic adds, plain adds on the CPU), and adds per
         lane a_e |g - Z_new|^2, a_e |g|^2, a_e |Z_new|^2 to acc rows R2, G2, Z2.
         """
-        c, b = wp.tid()
-        r2 = V()
-        g2 = V()
-        z2 = V()
+        c, g = wp.tid()
         e0, e1 = chunk_rows(c, chunk, m)
-        for e in range(e0, e1):
-            gx, gy, gz = element_gradient(elements, basis, X, e, b, 3)
-            ox = v[e, 0, b]
-            oy = v[e, 1, b]
-            oz = v[e, 2, b]
-            s = ball_scale(ox, oy, oz)
-            ox_z = wp.cw_mul(s, ox)
-            oy_z = wp.cw_mul(s, oy)
-            oz_z = wp.cw_mul(s, oz)
-            k = rho_v / rho
-            vx = k * (ox - ox_z) + relaxation * gx + (one - relaxation) * ox_z
-            vy = k * (oy - oy_z) + relaxation * gy + (one - relaxation) * oy_z
-            vz = k * (oz - oz_z) + relaxation * gz + (one - relaxation) * oz_z
-            v[e, 0, b] = vx
-            v[e, 1, b] = vy
-            v[e, 2, b] = vz
-            s = ball_scale(vx, vy, vz)
-            zx = wp.cw_mul(s, vx)
-            zy = wp.cw_mul(s, vy)
-            zz = wp.cw_mul(s, vz)
-            a = vol[e]
-            for l in range(3):
-                w = a * basis[e, l]
-                dz = w[0] * zx + w[1] * zy + w[2] * zz
-                wp.atomic_add(DZ_acc, elements[e, l], b, dz)
-                wp.atomic_add(DY_acc, elements[e, l], b, rho * (w[0] * vx + w[1] * vy + w[2] * vz - dz))
-            r2 += a * norm2(gx - zx, gy - zy, gz - zz)
-            g2 += a * norm2(gx, gy, gz)
-            z2 += a * norm2(zx, zy, zz)
-        wp.atomic_add(acc, R2, b, r2)
-        wp.atomic_add(acc, G2, b, g2)
-        wp.atomic_add(acc, Z2, b, z2)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            r2 = V()
+            g2 = V()
+            z2 = V()
+            for e in range(e0, e1):
+                gx, gy, gz = element_gradient(elements, basis, X, e, b, 3)
+                ox = v[e, 0, b]
+                oy = v[e, 1, b]
+                oz = v[e, 2, b]
+                s = ball_scale(ox, oy, oz)
+                ox_z = wp.cw_mul(s, ox)
+                oy_z = wp.cw_mul(s, oy)
+                oz_z = wp.cw_mul(s, oz)
+                k = rho_v / rho
+                vx = k * (ox - ox_z) + relaxation * gx + (one - relaxation) * ox_z
+                vy = k * (oy - oy_z) + relaxation * gy + (one - relaxation) * oy_z
+                vz = k * (oz - oz_z) + relaxation * gz + (one - relaxation) * oz_z
+                v[e, 0, b] = vx
+                v[e, 1, b] = vy
+                v[e, 2, b] = vz
+                s = ball_scale(vx, vy, vz)
+                zx = wp.cw_mul(s, vx)
+                zy = wp.cw_mul(s, vy)
+                zz = wp.cw_mul(s, vz)
+                a = vol[e]
+                for l in range(3):
+                    w = a * basis[e, l]
+                    dz = w[0] * zx + w[1] * zy + w[2] * zz
+                    wp.atomic_add(DZ_acc, elements[e, l], b, dz)
+                    wp.atomic_add(DY_acc, elements[e, l], b, rho * (w[0] * vx + w[1] * vy + w[2] * vz - dz))
+                r2 += a * norm2(gx - zx, gy - zy, gz - zz)
+                g2 += a * norm2(gx, gy, gz)
+                z2 += a * norm2(zx, zy, zz)
+            wp.atomic_add(acc, R2, b, r2)
+            wp.atomic_add(acc, G2, b, g2)
+            wp.atomic_add(acc, Z2, b, z2)
 
     @wp.kernel(enable_backward=False, module=module)
     def vertex_step(vertex_vol: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), rho: scalar, rho2: scalar,
                     H: wp.array2d(dtype=V), U: wp.array2d(dtype=V), DZ_acc: wp.array2d(dtype=V),
                     DY_acc: wp.array2d(dtype=V), DZ: wp.array2d(dtype=V), rhs: wp.array2d(dtype=V),
-                    acc: wp.array2d(dtype=V), chunk: int, n: int):
+                    acc: wp.array2d(dtype=V), chunk: int, group: int, n: int):
         """Right-hand side of the X-step (column j divided by A_V[j]) from the scattered divergences:
 
             rhs = mask ((1/2) A_V - D Y + rho D Z - M_V H + rho2 M_V U);
         adds |D Z - DZ|^2 (DZ: the previous D Z, then overwritten) and |D Y|^2 per lane to acc
         rows S2, DY2, and clears DZ_acc and DY_acc for the next element step.
         """
-        c, b = wp.tid()
-        s2 = V()
-        d2 = V()
+        c, g = wp.tid()
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            dz = DZ_acc[i, b]
-            dy = DY_acc[i, b]
-            DZ_acc[i, b] = V()
-            DY_acc[i, b] = V()
-            ddz = dz - DZ[i, b]
-            DZ[i, b] = dz
-            s2 += wp.cw_mul(ddz, ddz)
-            d2 += wp.cw_mul(dy, dy)
-            ai = vertex_vol[i]
-            rhs[i, b] = wp.cw_mul(mask[i, b], half * ai * V(one) - dy + rho * dz + ai * (rho2 * U[i, b] - H[i, b]))
-        wp.atomic_add(acc, S2, b, s2)
-        wp.atomic_add(acc, DY2, b, d2)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            s2 = V()
+            d2 = V()
+            for i in range(i0, i1):
+                dz = DZ_acc[i, b]
+                dy = DY_acc[i, b]
+                DZ_acc[i, b] = V()
+                DY_acc[i, b] = V()
+                ddz = dz - DZ[i, b]
+                DZ[i, b] = dz
+                s2 += wp.cw_mul(ddz, ddz)
+                d2 += wp.cw_mul(dy, dy)
+                ai = vertex_vol[i]
+                rhs[i, b] = wp.cw_mul(mask[i, b], half * ai * V(one) - dy + rho * dz + ai * (rho2 * U[i, b] - H[i, b]))
+            wp.atomic_add(acc, S2, b, s2)
+            wp.atomic_add(acc, DY2, b, d2)
 
     @wp.func(module=module)
     def load_transposed(A: wp.array2d(dtype=V), row0: int, block: int, n: int):

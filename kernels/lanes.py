@@ -5,8 +5,8 @@ import types
 
 import warp as wp
 
-__all__ = ["lane_type", "lane_width", "chunk_size", "row_dim", "chunk_rows", "lane_kernels", "lane_funcs", "SCALARS",
-           "R2", "G2", "Z2", "S2", "DY2"]
+__all__ = ["lane_type", "lane_width", "thread_span", "row_dim", "chunk_rows", "group_blocks", "ALL_BLOCKS",
+           "lane_kernels", "lane_funcs", "SCALARS", "R2", "G2", "Z2", "S2", "DY2"]
 
 SCALARS = {"float32": wp.float32, "float64": wp.float64}
 
@@ -32,30 +32,46 @@ def lane_type(scalar, width):
     return wp.types.vector(width, scalar)
 
 
-def chunk_size(device, blocks=1):
-    """Rows per thread of a (row chunks, blocks) launch over arrays of ``blocks`` column blocks.
+ALL_BLOCKS = 32
+"""From this many column blocks per row a CPU thread takes one row of all of them (:func:`thread_span`)."""
 
-    One row on CUDA. On the CPU one core runs the launch thread by thread, blocks fastest:
-    128 rows per thread (one atomic per chunk), except for arrays of many blocks (the
-    all-pairs state: 122 on cat), whose consecutive rows of one block lie blocks x 64 bytes
-    apart; one row per thread then walks each row's blocks contiguously (the all-pairs
-    element step on cat: 92 ms instead of 300-370 ms; a 64-source batch, 8 blocks, was
-    fastest at 128).
+
+def thread_span(device, blocks=1, row_blocks=None):
+    """(rows, group): the rows and column blocks each thread of a launch handles, over
+    ``blocks`` active column blocks of arrays whose rows hold ``row_blocks`` blocks (default
+    ``blocks``); the launch's second dimension is blocks // group.
+
+    One row of one block on CUDA. On the CPU one core runs the launch thread by thread:
+    128 rows of one block per thread (one atomic per chunk) for short rows; for long rows
+    (>= ``ALL_BLOCKS`` blocks: the all-pairs state, 122 on cat) the consecutive rows of one
+    block lie row_blocks x 64 bytes apart, so one thread takes one row of every active block,
+    a contiguous run of memory (cat, float32, one core: the PCG's matrix product 10 ms with
+    one row of one block per thread, 29 ms with 128 rows, 5.6 ms with one row of all blocks).
+    The sums over rows are added in another order in the two layouts, so the choice depends
+    on the arrays' layout alone, not on how many of their blocks a launch covers.
     """
-    return 1 if wp.get_device(device).is_cuda or blocks >= 32 else 128
+    if wp.get_device(device).is_cuda:
+        return 1, 1
+    return (1, blocks) if (blocks if row_blocks is None else row_blocks) >= ALL_BLOCKS else (128, 1)
 
 
-def row_dim(n, chunk, blocks=None):
-    """Launch dimension (row chunks, blocks) of a row loop over n rows, ``chunk`` rows per thread
-    ((row chunks,) without blocks)."""
-    chunks = (n + chunk - 1) // chunk
-    return (chunks,) if blocks is None else (chunks, blocks)
+def row_dim(n, span, blocks=None):
+    """Launch dimension (row chunks, block groups) of a loop over n rows and ``blocks`` column blocks
+    with ``span`` = (rows, group) per thread ((row chunks,) without blocks)."""
+    chunks = (n + span[0] - 1) // span[0]
+    return (chunks,) if blocks is None else (chunks, blocks // span[1])
 
 
 @wp.func
 def chunk_rows(c: int, chunk: int, n: int):
     """First and one-past-last row of chunk c."""
     return c * chunk, wp.min(c * chunk + chunk, n)
+
+
+@wp.func
+def group_blocks(g: int, group: int):
+    """First and one-past-last column block of block group g."""
+    return g * group, g * group + group
 
 
 @functools.cache

@@ -17,13 +17,17 @@ of launches (replayable, capturable as a graph):
 - ``bb`` (nb,): |b|^2 per lane; ``converged`` (nb,): 1 on lanes with |r|^2 <= tol2,
   tol2 = max(rtol2 |b|^2, atol2) per lane (``rtol2`` (1,), ``atol2`` (nb,)).
 
-One iteration from k: z = M r, cg_dot (RZ of slot k), cg_direction (p = mask z + beta p,
-beta = rz_k / rz_k-1), cg_matvec (q = mask K p, PQ of slot k + 1), cg_update
-(x += a p, r -= a q, a = rz_k / pq on lanes not converged, RR of slot k + 1), cg_check
-(k += 1, converged flags, running).
+- ``coef`` (2, nb): per-lane BETA and ALPHA of the current iteration, computed once per
+  block by one-thread-per-block kernels, so the row loops only read them.
 
-Row loops: each thread of a (row chunks, nb) launch handles ``chunk`` consecutive rows
-(``lanes.chunk_rows``) of one column block; ``lanes.row_dim`` is that launch's dimension.
+One iteration from k: z = M r, cg_dot (RZ of slot k), cg_beta (beta = rz_k / rz_k-1, clears
+slot k + 1), cg_direction (p = mask z + beta p), cg_matvec (q = mask K p, PQ of slot k + 1),
+cg_alpha (a = rz_k / pq on lanes not converged), cg_update (x += a p, r -= a q, RR of slot
+k + 1), cg_check (k += 1, converged flags, running).
+
+Row loops: each thread of a (row chunks, block groups) launch handles ``chunk`` consecutive
+rows (``lanes.chunk_rows``) of ``group`` column blocks (``lanes.group_blocks``);
+``lanes.row_dim`` is that launch's dimension, ``lanes.thread_span`` chooses (chunk, group).
 """
 
 import functools
@@ -31,9 +35,10 @@ import types
 
 import warp as wp
 
-from .lanes import chunk_rows, lane_type
+from .lanes import chunk_rows, group_blocks, lane_type
 
 PQ, RZ, RR = 0, 1, 2
+BETA, ALPHA = 0, 1
 ITERATION, MAX_ITERATIONS = 0, 1
 
 
@@ -75,19 +80,22 @@ def pcg_kernels(scalar, W):
     @wp.kernel(enable_backward=False, module=module)
     def cg_init(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
                 mask: wp.array2d(dtype=V), rhs: wp.array2d(dtype=V), x: wp.array2d(dtype=V),
-                r: wp.array2d(dtype=V), acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), chunk: int, n: int):
+                r: wp.array2d(dtype=V), acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), chunk: int, group: int,
+                n: int):
         """r = b - mask K x; slot 0 RR += r.r, bb += b.b."""
-        c, b = wp.tid()
-        rr = V()
-        sb = V()
+        c, g = wp.tid()
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            ri = rhs[i, b] - wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, x, i, b))
-            r[i, b] = ri
-            rr += wp.cw_mul(ri, ri)
-            sb += wp.cw_mul(rhs[i, b], rhs[i, b])
-        wp.atomic_add(acc, 0, RR, b, rr)
-        wp.atomic_add(bb, b, sb)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            rr = V()
+            sb = V()
+            for i in range(i0, i1):
+                ri = rhs[i, b] - wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, x, i, b))
+                r[i, b] = ri
+                rr += wp.cw_mul(ri, ri)
+                sb += wp.cw_mul(rhs[i, b], rhs[i, b])
+            wp.atomic_add(acc, 0, RR, b, rr)
+            wp.atomic_add(bb, b, sb)
 
     @wp.kernel(enable_backward=False, module=module)
     def cg_check(acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), rtol2: wp.array(dtype=scalar),
@@ -114,95 +122,128 @@ def pcg_kernels(scalar, W):
 
     @wp.kernel(enable_backward=False, module=module)
     def cg_dot(r: wp.array2d(dtype=V), z: wp.array2d(dtype=V), acc: wp.array3d(dtype=V),
-               counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, n: int):
+               counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, group: int,
+               n: int):
         """slot k RZ += r.z (= r.(mask z): r vanishes where mask is 0)."""
         if running[0] == 0:
             return
-        c, b = wp.tid()
-        rz = V()
+        c, g = wp.tid()
+        s = counters[ITERATION] % 3
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            rz += wp.cw_mul(r[i, b], z[i, b])
-        wp.atomic_add(acc, counters[ITERATION] % 3, RZ, b, rz)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            rz = V()
+            for i in range(i0, i1):
+                rz += wp.cw_mul(r[i, b], z[i, b])
+            wp.atomic_add(acc, s, RZ, b, rz)
 
     @wp.kernel(enable_backward=False, module=module)
-    def cg_direction(mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), z: wp.array2d(dtype=V),
-                     acc: wp.array3d(dtype=V),
-                     counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, n: int):
-        """p = mask z + beta p, beta = rz_k / rz_k-1 per lane (0 at k = 0); the first thread clears slot k + 1."""
+    def cg_beta(acc: wp.array3d(dtype=V), coef: wp.array2d(dtype=V), counters: wp.array(dtype=wp.int32),
+                running: wp.array(dtype=wp.int32)):
+        """Block b: coef BETA = rz_k / rz_k-1 per lane (0 at k = 0); clears slot k + 1."""
         if running[0] == 0:
             return
-        c, b = wp.tid()
+        b = wp.tid()
         k = counters[ITERATION]
-        s = k % 3
         beta = V()
         for l in range(W):
             den = acc[(k + 2) % 3, RZ, b][l]
             if den > zero:
-                beta[l] = acc[s, RZ, b][l] / den
+                beta[l] = acc[k % 3, RZ, b][l] / den
+        coef[BETA, b] = beta
+        nxt = (k + 1) % 3
+        acc[nxt, PQ, b] = V()
+        acc[nxt, RZ, b] = V()
+        acc[nxt, RR, b] = V()
+
+    @wp.kernel(enable_backward=False, module=module)
+    def cg_direction(mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), z: wp.array2d(dtype=V),
+                     coef: wp.array2d(dtype=V),
+                     counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32), chunk: int, group: int,
+                     n: int):
+        """p = mask z + beta p (p = mask z at k = 0)."""
+        if running[0] == 0:
+            return
+        c, g = wp.tid()
+        k = counters[ITERATION]
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            zi = wp.cw_mul(mask[i, b], z[i, b])
-            if k == 0:
-                p[i, b] = zi
-            else:
-                p[i, b] = zi + wp.cw_mul(beta, p[i, b])
-        if c == 0:
-            nxt = (k + 1) % 3
-            acc[nxt, PQ, b] = V()
-            acc[nxt, RZ, b] = V()
-            acc[nxt, RR, b] = V()
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            beta = coef[BETA, b]
+            for i in range(i0, i1):
+                zi = wp.cw_mul(mask[i, b], z[i, b])
+                if k == 0:
+                    p[i, b] = zi
+                else:
+                    p[i, b] = zi + wp.cw_mul(beta, p[i, b])
 
     @wp.kernel(enable_backward=False, module=module)
     def cg_matvec(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32), vals: wp.array(dtype=scalar),
                   mask: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
                   acc: wp.array3d(dtype=V), counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32),
-                  chunk: int, n: int):
+                  chunk: int, group: int, n: int):
         """q = mask K p; slot k + 1 PQ += p.q."""
         if running[0] == 0:
             return
-        c, b = wp.tid()
-        pq = V()
+        c, g = wp.tid()
+        s = (counters[ITERATION] + 1) % 3
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            qi = wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, p, i, b))
-            q[i, b] = qi
-            pq += wp.cw_mul(p[i, b], qi)
-        wp.atomic_add(acc, (counters[ITERATION] + 1) % 3, PQ, b, pq)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            pq = V()
+            for i in range(i0, i1):
+                qi = wp.cw_mul(mask[i, b], matvec_row(offsets, cols, vals, p, i, b))
+                q[i, b] = qi
+                pq += wp.cw_mul(p[i, b], qi)
+            wp.atomic_add(acc, s, PQ, b, pq)
+
+    @wp.kernel(enable_backward=False, module=module)
+    def cg_alpha(acc: wp.array3d(dtype=V), converged: wp.array(dtype=V), coef: wp.array2d(dtype=V),
+                 counters: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32)):
+        """Block b: coef ALPHA = rz_k / pq per lane (0 on converged lanes)."""
+        if running[0] == 0:
+            return
+        b = wp.tid()
+        k = counters[ITERATION]
+        a = V()
+        for l in range(W):
+            pq = acc[(k + 1) % 3, PQ, b][l]
+            if pq > zero and converged[b][l] == zero:
+                a[l] = acc[k % 3, RZ, b][l] / pq
+        coef[ALPHA, b] = a
 
     @wp.kernel(enable_backward=False, module=module)
     def cg_update(x: wp.array2d(dtype=V), r: wp.array2d(dtype=V), p: wp.array2d(dtype=V), q: wp.array2d(dtype=V),
-                  acc: wp.array3d(dtype=V), converged: wp.array(dtype=V), counters: wp.array(dtype=wp.int32),
-                  running: wp.array(dtype=wp.int32), chunk: int, n: int):
-        """x += a p, r -= a q with a = rz_k / pq per lane (0 on converged lanes); slot k + 1 RR += r.r."""
+                  acc: wp.array3d(dtype=V), coef: wp.array2d(dtype=V), counters: wp.array(dtype=wp.int32),
+                  running: wp.array(dtype=wp.int32), chunk: int, group: int, n: int):
+        """x += a p, r -= a q with a = coef ALPHA; slot k + 1 RR += r.r."""
         if running[0] == 0:
             return
-        c, b = wp.tid()
-        k = counters[ITERATION]
-        s = (k + 1) % 3
-        a = V()
-        for l in range(W):
-            pq = acc[s, PQ, b][l]
-            if pq > zero and converged[b][l] == zero:
-                a[l] = acc[k % 3, RZ, b][l] / pq
-        rr = V()
+        c, g = wp.tid()
+        s = (counters[ITERATION] + 1) % 3
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            x[i, b] = x[i, b] + wp.cw_mul(a, p[i, b])
-            ri = r[i, b] - wp.cw_mul(a, q[i, b])
-            r[i, b] = ri
-            rr += wp.cw_mul(ri, ri)
-        wp.atomic_add(acc, s, RR, b, rr)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            a = coef[ALPHA, b]
+            rr = V()
+            for i in range(i0, i1):
+                x[i, b] = x[i, b] + wp.cw_mul(a, p[i, b])
+                ri = r[i, b] - wp.cw_mul(a, q[i, b])
+                r[i, b] = ri
+                rr += wp.cw_mul(ri, ri)
+            wp.atomic_add(acc, s, RR, b, rr)
 
     @wp.kernel(enable_backward=False, module=module)
     def jacobi_apply(dinv: wp.array(dtype=scalar), r: wp.array2d(dtype=V), z: wp.array2d(dtype=V),
-                     chunk: int, n: int):
+                     chunk: int, group: int, n: int):
         """z = D^-1 r."""
-        c, b = wp.tid()
+        c, g = wp.tid()
         i0, i1 = chunk_rows(c, chunk, n)
-        for i in range(i0, i1):
-            z[i, b] = dinv[i] * r[i, b]
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            for i in range(i0, i1):
+                z[i, b] = dinv[i] * r[i, b]
 
     return types.SimpleNamespace(cg_reset=cg_reset, cg_init=cg_init, cg_check=cg_check, cg_dot=cg_dot,
-                                 cg_direction=cg_direction, cg_matvec=cg_matvec, cg_update=cg_update,
+                                 cg_beta=cg_beta, cg_direction=cg_direction, cg_alpha=cg_alpha, cg_matvec=cg_matvec, cg_update=cg_update,
                                  jacobi_apply=jacobi_apply, matvec_row=matvec_row, V=V)

@@ -219,8 +219,8 @@ def test_device_change_test_matches_the_host_rule():
         values[:, 2] = base[:, 2] * (2.0 if j == 4 else 1.0)  # settles, jumps at the 4th test, settles again
         u.assign(values.reshape(n, 1, 4))
         step.assign(np.array([j * window, 0], dtype=np.int32))
-        wp.launch(kern.change_measure, row_dim(n, 16, 1), device="cpu",
-                  inputs=[u, snapshot, step, window, lane, 16, n])
+        wp.launch(kern.change_measure, row_dim(n, (16, 1), 1), device="cpu",
+                  inputs=[u, snapshot, step, window, lane, 16, 1, n])
         wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]
                   + [wp.float64(x) for x in (0.0, 1.0, 1.0, eps, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0)] + [atol2])
         device_settled = lane.numpy()[SETTLED, 0] == 1.0

@@ -58,7 +58,7 @@ import warp as wp
 from scipy.optimize import OptimizeResult
 
 from .kernels.all_pairs import H2, RX2, SX2, U2, X2, all_pairs_kernels
-from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, chunk_size, lane_type, lane_width, row_dim
+from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, lane_type, lane_width, row_dim, thread_span
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
@@ -197,11 +197,11 @@ class _Part:
         self.scalar = sc
         dev = arrays["X"].device
         n, m, nb, W = setup.n, setup.m, setup.nb, setup.W
-        chunk = chunk_size(dev, nb)
         k = all_pairs_kernels(sc, W)
         b0, b1 = setup.blocks[t], setup.blocks[t + 1]
         i0, i1 = setup.rows[t], setup.rows[t + 1]
         cols = slice(b0, b1)
+        span = thread_span(dev, b1 - b0, nb)
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes
         self._arrays = dict(
@@ -219,14 +219,14 @@ class _Part:
         self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
         # each process launches from one thread, so on the CPU the CG loop can be one captured graph
         self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
-        self.vertex = wp.launch(k.vertex_step, row_dim(n, chunk, b1 - b0), device=dev, record_cmd=True,
+        self.vertex = wp.launch(k.vertex_step, row_dim(n, span, b1 - b0), device=dev, record_cmd=True,
                                 inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
                                 + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
-                                + [chunk, n])
-        self.element = wp.launch(k.element_step, row_dim(m, chunk, b1 - b0), device=dev, record_cmd=True,
+                                + [*span, n])
+        self.element = wp.launch(k.element_step, row_dim(m, span, b1 - b0), device=dev, record_cmd=True,
                                  inputs=[a["elements"], a["basis"], a["volumes"], self.X, arrays["v"][:, :, cols],
                                          sc(1.0), sc(1.0), sc(setup.relaxation), arrays["DZ_acc"][:, cols],
-                                         arrays["DY_acc"][:, cols], arrays["acc"][:, cols], chunk, m])
+                                         arrays["DY_acc"][:, cols], arrays["acc"][:, cols], *span, m])
         self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
             arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
             arrays["acc_pairs"], i0, n]) if i1 > i0 else None

@@ -39,9 +39,8 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .kernels.lanes import chunk_size, lane_type
+from .kernels.lanes import lane_type, row_dim, thread_span
 from .kernels.multigrid import multigrid_kernels
-from .kernels.lanes import row_dim
 from .pcg import csr_arrays
 
 __all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]
@@ -248,7 +247,6 @@ class MultigridPreconditioner:
         self.kernels = multigrid_kernels(scalar, width)
         V = lane_type(scalar, width)
         self.device = device
-        self.chunk = chunk_size(device)
         self.sizes = hierarchy.sizes
         self.n = self.sizes[0]
         if hierarchy.smoothers:
@@ -266,13 +264,14 @@ class MultigridPreconditioner:
 
     def record(self, r, z, blocks):
         """Recorded launches computing z = M_0 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
-        k, chunk, dev, sizes = self.kernels, self.chunk, self.device, self.sizes
+        k, dev, sizes = self.kernels, self.device, self.sizes
+        span = thread_span(dev, blocks)
         ys, zs = [r] + self.y, [z] + self.z
         levels = len(sizes)
 
         def rec(kernel, level, *inputs):
-            return wp.launch(kernel, row_dim(sizes[level], chunk, blocks), device=dev, record_cmd=True,
-                             inputs=[*inputs, chunk, sizes[level]])
+            return wp.launch(kernel, row_dim(sizes[level], span, blocks), device=dev, record_cmd=True,
+                             inputs=[*inputs, *span, sizes[level]])
 
         launches = [rec(k.mg_restrict, l + 1, *R, ys[l], ys[l + 1]) for l, R in enumerate(self.restrictions)]
         if levels > 1:

@@ -25,8 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .kernels.lanes import chunk_size
-from .kernels.lanes import row_dim
+from .kernels.lanes import row_dim, thread_span
 from .kernels.pcg import ITERATION, RR, pcg_kernels
 
 __all__ = ["BatchedPCG", "JacobiPreconditioner", "csr_arrays"]
@@ -71,13 +70,13 @@ class JacobiPreconditioner:
         self.n = matrix.shape[0]
         self.kernel = pcg_kernels(scalar, width).jacobi_apply
         self.device = device
-        self.chunk = chunk_size(device)
         self.dinv = wp.array(_inverse_diagonal(matrix), dtype=scalar, device=device)
 
     def record(self, r, z, blocks):
         """Recorded launches computing z = D^-1 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
-        return [wp.launch(self.kernel, row_dim(self.n, self.chunk, blocks), device=self.device, record_cmd=True,
-                          inputs=[self.dinv, r, z, self.chunk, self.n])]
+        span = thread_span(self.device, blocks)
+        return [wp.launch(self.kernel, row_dim(self.n, span, blocks), device=self.device, record_cmd=True,
+                          inputs=[self.dinv, r, z, *span, self.n])]
 
     def set_matrix(self, matrix):
         """Follow a change of the PCG's matrix (in place: recorded launches stay valid)."""
@@ -141,12 +140,12 @@ class BatchedPCG:
         shape = (self.n, blocks)
         self.r, self.z, self.p, self.q = (wp.zeros(shape, dtype=V, device=device) for _ in range(4))
         self.acc = wp.zeros((3, 3, blocks), dtype=V, device=device)
+        self.coef = wp.zeros((2, blocks), dtype=V, device=device)
         self.bb, self.converged, self.atol2 = (wp.zeros(blocks, dtype=V, device=device) for _ in range(3))
         self.rtol2 = wp.zeros(1, dtype=scalar, device=device)
         self.counters = wp.zeros(2, dtype=wp.int32, device=device)
         self.running = wp.zeros(1, dtype=wp.int32, device=device)
         self._atol2_host = np.zeros((blocks, width))
-        self.chunk = chunk_size(device)
         self.blocks = blocks
         self._program = None
         self.preconditioner = self._operator(preconditioner, K, scalar, width, blocks)
@@ -225,9 +224,10 @@ class BatchedPCG:
         """(start, body, graph) for these arrays: start = reset, init, check; body = one CG iteration."""
         key = tuple((a.ptr, a.shape, a.strides) for a in (rhs, x, mask))
         if self._program is None or self._program[0] != key:
-            k, chunk, n, dev, blocks = self.kernels, self.chunk, self.n, self.device, self.blocks
+            k, n, dev, blocks = self.kernels, self.n, self.device, self.blocks
             state = (self.counters, self.running)
-            dim = row_dim(n, chunk, blocks)
+            span = thread_span(dev, blocks, x.strides[0] // x.strides[1])  # the caller's row layout
+            dim = row_dim(n, span, blocks)
 
             def rec(kernel, dim, *args):
                 return wp.launch(kernel, dim, inputs=list(args), device=dev, record_cmd=True)
@@ -235,14 +235,16 @@ class BatchedPCG:
             check = [self.acc, self.bb, self.rtol2, self.atol2, self.converged, *state]
             start = [rec(k.cg_reset, blocks, self.acc, self.bb, self.converged, *state),
                      rec(k.cg_init, dim, self.offsets, self.columns, self.values, mask, rhs, x, self.r, self.acc,
-                         self.bb, chunk, n),
+                         self.bb, *span, n),
                      rec(k.cg_check, 1, *check, 0, blocks)]
             body = [*self.preconditioner.record(self.r, self.z, blocks),
-                    rec(k.cg_dot, dim, self.r, self.z, self.acc, *state, chunk, n),
-                    rec(k.cg_direction, dim, mask, self.p, self.z, self.acc, *state, chunk, n),
+                    rec(k.cg_dot, dim, self.r, self.z, self.acc, *state, *span, n),
+                    rec(k.cg_beta, blocks, self.acc, self.coef, *state),
+                    rec(k.cg_direction, dim, mask, self.p, self.z, self.coef, *state, *span, n),
                     rec(k.cg_matvec, dim, self.offsets, self.columns, self.values, mask, self.p, self.q, self.acc,
-                        *state, chunk, n),
-                    rec(k.cg_update, dim, x, self.r, self.p, self.q, self.acc, self.converged, *state, chunk, n),
+                        *state, *span, n),
+                    rec(k.cg_alpha, blocks, self.acc, self.converged, self.coef, *state),
+                    rec(k.cg_update, dim, x, self.r, self.p, self.q, self.acc, self.coef, *state, *span, n),
                     rec(k.cg_check, 1, *check, 1, blocks)]
             self._program = (key, start, body, None)
             if self.capture:

@@ -31,7 +31,7 @@ from scipy.optimize import OptimizeResult, OptimizeWarning
 
 from .kernels.admm import (CG_TOTAL, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
                            R_LAST, R_OUT, RHO_LAST, RHO_OUT, S_LAST, S_OUT, admm_kernels)
-from .kernels.lanes import SCALARS, chunk_size, lane_kernels, lane_type, lane_width, row_dim
+from .kernels.lanes import SCALARS, lane_kernels, lane_type, lane_width, row_dim, thread_span
 from .mesh import Mesh
 from .multigrid import smoothed_aggregation
 from .operators import build_operators
@@ -568,7 +568,8 @@ class _ColumnBatch:
         whole solve: rho, the tolerances and the counters live in device arrays) and capture them."""
         sv, ws, kern = self.solver, self.ws, self.kernels
         n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
-        dev, chunk = sv.device, chunk_size(sv.device)
+        dev = sv.device
+        span = thread_span(dev, blocks, ws["u"].shape[1])
         self.blocks = blocks
         pcg = ws["pcg"]
         pcg.set_active_blocks(blocks)
@@ -576,25 +577,25 @@ class _ColumnBatch:
         def rec(kernel, dim, *args):
             return wp.launch(kernel, dim, device=dev, record_cmd=True, inputs=list(args))
 
-        elem_dim, vert_dim = row_dim(m, chunk, blocks), row_dim(n, chunk, blocks)
+        elem_dim, vert_dim = row_dim(m, span, blocks), row_dim(n, span, blocks)
         st = self.settings
         self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"],
-                          sc(st["shift"]), sc(st["scale"]), ws["rhs"], chunk, n)
+                          sc(st["shift"]), sc(st["scale"]), ws["rhs"], *span, n)
         self.after_u = [
             rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"],
-                sc(tolerances.relaxation), ws["z"], ws["y"], ws["acc"], chunk, m),
+                sc(tolerances.relaxation), ws["z"], ws["y"], ws["acc"], *span, m),
             rec(kern.advance, 1, ws["step"], pcg.counters)]
         self.top = [
             rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"],
-                ws["y"], ws["z"], ws["Dy"], ws["Dz"], ws["acc"], chunk, n),
-            rec(kern.change_measure, vert_dim, ws["u"], ws["snapshot"], ws["step"], self.window, ws["lane"], chunk, n),
+                ws["y"], ws["z"], ws["Dy"], ws["Dz"], ws["acc"], *span, n),
+            rec(kern.change_measure, vert_dim, ws["u"], ws["snapshot"], ws["step"], self.window, ws["lane"], *span, n),
             rec(kern.admm_check, blocks, ws["acc"], ws["lane"], ws["rho"], ws["step"], ws["rho_table"], self.window,
                 *(sc(st[key]) for key in ("eps_pri_abs", "eps_rel", "eps_rel_dual", "eps_change", "cg_fraction",
                                           "cg_primal", "alpha", "shift", "scale", "length")), pcg.atol2),
-            rec(kern.freeze_lanes, vert_dim, ws["lane"], ws["u"], ws["u_out"], chunk, n)]
+            rec(kern.freeze_lanes, vert_dim, ws["lane"], ws["u"], ws["u_out"], *span, n)]
         if ws["y_out"] is not None:
             y, y_out = (a.reshape((3 * m, a.shape[2])) for a in (ws["y"], ws["y_out"]))
-            self.top.append(rec(kern.freeze_lanes, row_dim(3 * m, chunk, blocks), ws["lane"], y, y_out, chunk, 3 * m))
+            self.top.append(rec(kern.freeze_lanes, row_dim(3 * m, span, blocks), ws["lane"], y, y_out, *span, 3 * m))
         self.graph = None
         if self.capture:
             wp.capture_begin(dev, force_module_load=False)
@@ -637,7 +638,7 @@ class _ColumnBatch:
         dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
         if src.size:
             sv, ws = self.solver, self.ws
-            dev, chunk = sv.device, chunk_size(sv.device)
+            dev, span = sv.device, thread_span(sv.device)
             s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
             d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
             nb = ws["u"].shape[1]
@@ -645,7 +646,7 @@ class _ColumnBatch:
             # and the CG tolerances that the last test set for the next u-step
             for a in [ws[name] for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "lane")] + [ws["pcg"].atol2]:
                 a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
-                wp.launch(self.move, row_dim(a2.shape[0], chunk), device=dev,
-                          inputs=[a2, s_arr, d_arr, src.size, chunk, a2.shape[0]])
+                wp.launch(self.move, row_dim(a2.shape[0], span), device=dev,
+                          inputs=[a2, s_arr, d_arr, src.size, span[0], a2.shape[0]])
             slot_col[dst], slot_col[src] = slot_col[src], -1
         self._record(blocks)
