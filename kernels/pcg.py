@@ -50,17 +50,23 @@ def pcg_kernels(scalar, W):
     zero = scalar(0.0)
     one = scalar(1.0)
 
-    @wp.func(module=module)
+    vector_cpp = f"wp::vec_t<{W}, wp::{scalar.__name__}>"
+
+    @wp.func_native(f"""
+    // raw pointers: Warp's own indexing adds a negative-index wrap and a stride product per access
+    const char* column = reinterpret_cast<const char*>(x.data) + static_cast<size_t>(b) * x.strides[1];
+    const size_t row_stride = static_cast<size_t>(x.strides[0]);
+    {vector_cpp} s = {vector_cpp}();
+    const int e = offsets.data[i + 1];
+    for (int p = offsets.data[i]; p < e; ++p)
+        s = wp::add(s, wp::mul(vals.data[p],
+                               *reinterpret_cast<const {vector_cpp}*>(column + cols.data[p] * row_stride)));
+    return s;
+    """)
     def matvec_row(offsets: wp.array(dtype=wp.int32), cols: wp.array(dtype=wp.int32),
-                   vals: wp.array(dtype=scalar), x: wp.array2d(dtype=V), i: int, b: int):
-        """(A x)_i of column block b for a CSR matrix A."""
-        s = V()
-        p = offsets[i]
-        e = offsets[i + 1]
-        while p < e:
-            s += vals[p] * x[cols[p], b]
-            p += 1
-        return s
+                   vals: wp.array(dtype=scalar), x: wp.array2d(dtype=V), i: int, b: int) -> V:
+        """(A x)_i of column block b for a CSR matrix A (sum over the row's entries in storage order)."""
+        ...
 
     @wp.kernel(enable_backward=False, module=module)
     def cg_reset(acc: wp.array3d(dtype=V), bb: wp.array(dtype=V), converged: wp.array(dtype=V),

@@ -4,6 +4,7 @@ import importlib.resources
 
 import numpy as np
 import pytest
+import scipy.sparse.linalg
 import warp as wp
 
 import warp_regdist as wrd
@@ -178,3 +179,23 @@ def test_preconditioner_operator_and_bad_options(spot_stiffness, device):
                   1e-8, 10, atol=[1e-3, 1e-3])
     with pytest.raises(ValueError, match=r"expected check_every a positive integer, got 0"):
         BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner="jacobi", check_every=0)
+
+
+@pytest.mark.parametrize("row_blocks", [6, 40])  # 128 rows of one block per thread / one row of all blocks
+def test_column_slices_of_a_wider_state(spot_stiffness, spot_hierarchy, device, row_blocks):
+    """x, rhs and mask as blocks 2..4 of (n, row_blocks) arrays (the all-pairs parts' layout): the
+    row products index rows by the arrays' strides, and the answer is the direct solve's."""
+    n, W = spot_stiffness.shape[0], 4
+    mask, b = _problem(spot_stiffness, 3 * W, seed=5)
+    wide = {name: np.zeros((n, row_blocks * W)) for name in ("x", "b", "mask")}
+    wide["b"][:, 2 * W:5 * W], wide["mask"][:, 2 * W:5 * W] = b, mask
+    arrays = {name: _blocks(values, device)[:, 2:5] for name, values in wide.items()}
+    pcg = BatchedPCG(spot_stiffness, wp.float64, W, 3, device, preconditioner=spot_hierarchy)
+    it, rel = pcg.solve(arrays["b"], arrays["x"], arrays["mask"], 1e-11, 500)
+    assert np.all(rel <= 1e-11) and 0 < it < 60
+    x = arrays["x"].numpy().reshape(n, 3 * W)
+    ref = np.zeros_like(b)
+    for j in range(3 * W):
+        f = mask[:, j] > 0
+        ref[f, j] = scipy.sparse.linalg.spsolve(spot_stiffness[f][:, f].tocsc(), b[f, j])
+    assert np.abs(x - ref).max() <= 1e-8 * np.abs(ref).max()
