@@ -269,13 +269,16 @@ class MultigridPreconditioner:
         ys, zs = [r] + self.y, [z] + self.z
         levels = len(sizes)
 
-        def rec(kernel, level, *inputs):
+        def rec(kernel, level, *inputs, span=span):
             return wp.launch(kernel, row_dim(sizes[level], span, blocks), device=dev, record_cmd=True,
                              inputs=[*inputs, *span, sizes[level]])
 
         launches = [rec(k.mg_restrict, l + 1, *R, ys[l], ys[l + 1]) for l, R in enumerate(self.restrictions)]
         if levels > 1:
-            launches.append(rec(k.mg_coarse, levels - 1, self.inverse, ys[-1], zs[-1]))
+            # on the CPU one thread per block walks all coarse rows, its column of y staying in the L1
+            # cache (cat, 194 x 194 inverse, 122 blocks: 6-8 ms per application with one row per thread)
+            launches.append(rec(k.mg_coarse, levels - 1, self.inverse, ys[-1], zs[-1],
+                                span=span if dev.is_cuda else (sizes[-1], 1)))
         for l in range(max(levels - 2, 0), -1, -1):
             launches.append(rec(k.mg_prolong, l, *self.smoothers[l], *self.prolongations[l], ys[l],
                                 zs[l + 1] if levels > 1 else r, zs[l]))
