@@ -246,7 +246,7 @@ class MultigridPreconditioner:
     def __init__(self, hierarchy, scalar, width, blocks, device):
         self.kernels = multigrid_kernels(scalar, width)
         V = lane_type(scalar, width)
-        self.device = device
+        self.device = wp.get_device(device)
         self.sizes = hierarchy.sizes
         self.n = self.sizes[0]
         if hierarchy.smoothers:
