@@ -9,6 +9,7 @@ all pairs) within 1e-3 of the maximal distance.
 import copy
 import math
 import os
+import signal
 
 import numpy as np
 import pytest
@@ -247,3 +248,39 @@ def test_captured_graph_launches_and_sparse_checks_give_the_same_solve(sphere162
             np.testing.assert_array_equal(other[key], graph[key])
     assert launches.cg_iterations == graph.cg_iterations <= sparse.cg_iterations  # sparse checks: a few spare iterations
     assert len(set(graph.iterations.tolist())) > 1
+
+
+class _Countdown:
+    """A problem for run_iterations: its test passes from iteration ``done_at``; records the calls."""
+
+    def __init__(self, done_at, interrupt_at=None):
+        self.done_at, self.interrupt_at, self.calls = done_at, interrupt_at, []
+
+    def status(self, it):
+        self.calls.append(("status", it))
+        return it >= self.done_at
+
+    def advance(self, it, count):
+        self.calls.append(("advance", it, count))
+        if self.interrupt_at is not None and it <= self.interrupt_at < it + count:
+            os.kill(os.getpid(), signal.SIGINT)
+
+
+def test_engine_loop_tests_every_check_and_stops_where_it_should():
+    from warp_regdist.admm import CONVERGED, INTERRUPTED, MAX_ITERATIONS, run_iterations
+    from warp_regdist import interrupt
+
+    p = _Countdown(7)
+    assert run_iterations(p, 0, 100, check_every=3) == (9, CONVERGED)
+    assert p.calls == [("status", 0), ("advance", 0, 3), ("status", 3), ("advance", 3, 3), ("status", 6),
+                       ("advance", 6, 3), ("status", 9)]
+    p = _Countdown(10**9)
+    assert run_iterations(p, 2, 8, check_every=3) == (8, MAX_ITERATIONS)
+    assert p.calls[-3:] == [("status", 5), ("advance", 5, 3), ("status", 8)]
+    p = _Countdown(10**9)
+    assert run_iterations(p, 0, 8, check_every=3)[0] == 8 and p.calls[-2:] == [("advance", 6, 2), ("status", 8)]
+    # Ctrl-C during an advance: the loop returns after it, without testing its iterate
+    p = _Countdown(10**9, interrupt_at=4)
+    with interrupt.catch_interrupt():
+        assert run_iterations(p, 0, 100, check_every=2) == (6, INTERRUPTED)
+    assert p.calls[-1] == ("advance", 4, 2)

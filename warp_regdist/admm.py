@@ -1,6 +1,10 @@
-"""The ADMM engine's swappable parts, shared by DistanceSolver and all_pairs (docs/method.md section 8).
+"""The ADMM engine shared by DistanceSolver and all_pairs (docs/method.md section 8): the loop
+:func:`run_iterations` and its swappable parts.
 
-:class:`PenaltySchedule` is the penalty rho at iteration k; :class:`ChangeTest` and
+:func:`run_iterations` drives a problem that supplies ``status(it)`` (the tests of its iterate
+after ``it`` iterations, read from the device) and ``advance(it, count)`` (``count`` iterations
+on the device, ending with the device work of the next test). :class:`PenaltySchedule` is the
+penalty rho at iteration k; :class:`ChangeTest` and
 :class:`ExtrapolatedChangeTest` are the change tests that, besides the residual test, decide
 when a column (a source set, or the whole all-pairs matrix) stops (DistanceSolver runs
 ChangeTest's rule on the device, kernels/admm.py, checked against it by the tests). Both solvers build them
@@ -16,7 +20,41 @@ import math
 
 import numpy as np
 
-__all__ = ["PenaltySchedule", "ChangeTest", "ExtrapolatedChangeTest", "check_schedule"]
+from . import interrupt
+
+__all__ = ["run_iterations", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule", "ChangeTest",
+           "ExtrapolatedChangeTest", "check_schedule"]
+
+CONVERGED, MAX_ITERATIONS, INTERRUPTED = "converged", "max_iterations", "interrupted"
+"""Why :func:`run_iterations` stopped."""
+
+
+def run_iterations(problem, start, max_iterations, check_every=1):
+    """The ADMM loop: from iteration ``start``, test, then advance ``check_every`` iterations at a time.
+
+    ``problem.status(it)`` returns True when the iterate after ``it`` iterations passes its
+    stopping test (it may also collect finished columns, record history, report progress);
+    ``problem.advance(it, count)`` runs iterations it .. it + count - 1 and the device work of the
+    next test. The loop stops at the first passing test, at ``max_iterations`` (the last advance
+    is shortened to end there), or at a Ctrl-C caught by :func:`warp_regdist.interrupt.catch_interrupt`
+    (checked before each test: an interrupted run returns after the advance under way, untested).
+
+    Returns
+    -------
+    iterations : int
+    reason : CONVERGED, MAX_ITERATIONS or INTERRUPTED
+    """
+    it = start
+    while True:
+        if interrupt.requested():
+            return it, INTERRUPTED
+        if problem.status(it):
+            return it, CONVERGED
+        if it >= max_iterations:
+            return it, MAX_ITERATIONS
+        count = min(check_every, max_iterations - it)
+        problem.advance(it, count)
+        it += count
 
 
 @dataclasses.dataclass(frozen=True)

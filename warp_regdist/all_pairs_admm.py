@@ -65,7 +65,7 @@ from .operators import build_operators
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 from . import interrupt
-from .admm import ExtrapolatedChangeTest, PenaltySchedule, check_schedule
+from .admm import CONVERGED, INTERRUPTED, ExtrapolatedChangeTest, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .solver import ConvergenceWarning
 from .tolerances import tolerances
@@ -656,66 +656,77 @@ class _Run:
             if os.path.exists(tmp):
                 os.remove(tmp)
 
+    def _elapsed(self):
+        return self.seconds_before + time.perf_counter() - self.t0
+
+    def top(self, it):
+        """The top of iteration ``it``: the checkpoint when one is due (after the first iteration of
+        this run: every ``checkpoint_seconds``, at the iteration cap, on Ctrl-C), this iteration's
+        penalties and the X-step's right-hand side (with the sums of the dual residual)."""
+        if self.checkpoint is not None and it > self.start and (
+                interrupt.requested() or it == self.max_iterations
+                or time.perf_counter() - self.last_save >= self.checkpoint_seconds):
+            self.save(it, self._elapsed())
+            self.last_save = time.perf_counter()
+        rho = self.schedule.rho(it)
+        self.state.set_penalties(rho, self.rho2_factor * rho * rho / (self.state.L * self.state.A))
+        self.s2, self.dy2 = self.state.right_hand_side()
+
+    def status(self, it):
+        """The seven residuals of the iterate after ``it`` iterations against their tolerances, the
+        change test; history and progress. True when all hold (the final checkpoint is written)."""
+        if it == 0:
+            return False
+        st, tol, w = self.state, tolerances, self.state.column_area
+        n, m, A = st.n, st.m, st.A
+        rho_old, rho2_old = self.last_penalties
+        cols, pairs = self.cols, self.pairs
+        r1 = math.sqrt(w @ cols[0])
+        s1 = rho_old * math.sqrt((w * w) @ self.s2)
+        rx = math.sqrt(pairs[RX2])
+        sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
+        eps_p = tol.eps_abs * math.sqrt(3 * m) * A + self.eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
+        eps_d = tol.eps_abs * math.sqrt(n) * A * A + self.eps_rel_dual * max(math.sqrt((w * w) @ self.dy2),
+                                                                              self.load_norm)
+        eps_x = tol.eps_abs * math.sqrt(n) * A ** 1.5 + self.eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2]))
+        eps_dx = tol.eps_abs * math.sqrt(n) * A + self.eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
+        self.res = res = np.array([r1, r1, s1, s1, rx, rx, sx])
+        self.eps = eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
+        self.history.append(res / np.maximum(eps, 1e-300))
+        if self.progress is not None:
+            self.progress(it, res, eps, self._elapsed(), self.memory)
+        if self.change_test.due(it):
+            self.change_test.update(st.get("U").reshape(-1, 1))
+        if np.all(res <= eps) and self.change_test.settled[0]:
+            if self.checkpoint is not None:
+                self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
+            return True
+        return False
+
+    def advance(self, it, count):
+        """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
+        st, tol = self.state, tolerances
+        for j in range(it, it + count):
+            atol = self.cg_fraction * (np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
+            self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
+            self.last_penalties = st.penalties
+            self.cols, self.pairs = st.consensus()
+            self.top(j + 1)
+
     def iterate(self, t0):
-        st = self.state
-        n, m = st.n, st.m
-        tol = tolerances
-        A, L = st.A, st.L
-        w = st.column_area
-        res = np.zeros(7)
-        eps = np.ones(7)
-        converged = interrupted = False
+        """The loop (:func:`~warp_regdist.admm.run_iterations`) from ``self.start``; the AllPairsResult."""
+        self.t0 = t0
+        self.last_save = time.perf_counter()
         # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and
         # M_V H balance in the X-step; Y (and H) vanish where no gradient constraint is active,
         # which can be everywhere (a large alpha_hat), and a test relative to them alone never holds.
-        load_norm = 0.5 * np.linalg.norm(st.setup.vertex_volumes) * np.linalg.norm(w)
-        last_save = time.perf_counter()
-        it = self.start
+        self.load_norm = 0.5 * np.linalg.norm(self.state.setup.vertex_volumes) * np.linalg.norm(self.state.column_area)
+        self.res, self.eps = np.zeros(7), np.ones(7)
         with interrupt.catch_interrupt():
-            for it in range(self.start, self.max_iterations + 1):
-                elapsed = self.seconds_before + time.perf_counter() - t0
-                if self.checkpoint is not None and it > self.start and (
-                        interrupt.requested() or it == self.max_iterations
-                        or time.perf_counter() - last_save >= self.checkpoint_seconds):
-                    self.save(it, elapsed)
-                    last_save = time.perf_counter()
-                if interrupt.requested():
-                    interrupted = True
-                    break
-                rho = self.schedule.rho(it)
-                st.set_penalties(rho, self.rho2_factor * rho * rho / (L * A))
-                s2, dy2 = st.right_hand_side()
-                if it > 0:
-                    rho_old, rho2_old = self.last_penalties
-                    cols, pairs = self.cols, self.pairs
-                    r1 = math.sqrt(w @ cols[0])
-                    s1 = rho_old * math.sqrt((w * w) @ s2)
-                    rx = math.sqrt(pairs[RX2])
-                    sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
-                    eps_p = tol.eps_abs * math.sqrt(3 * m) * A + self.eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
-                    eps_d = (tol.eps_abs * math.sqrt(n) * A * A
-                             + self.eps_rel_dual * max(math.sqrt((w * w) @ dy2), load_norm))
-                    eps_x = (tol.eps_abs * math.sqrt(n) * A ** 1.5
-                             + self.eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2])))
-                    eps_dx = tol.eps_abs * math.sqrt(n) * A + self.eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
-                    res = np.array([r1, r1, s1, s1, rx, rx, sx])
-                    eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
-                    self.history.append(res / np.maximum(eps, 1e-300))
-                    if self.progress is not None:
-                        self.progress(it, res, eps, elapsed, self.memory)
-                    if self.change_test.due(it):
-                        self.change_test.update(st.get("U").reshape(-1, 1))
-                    if np.all(res <= eps) and self.change_test.settled[0]:
-                        converged = True
-                        if self.checkpoint is not None:
-                            self.save(it, elapsed, dict(final=np.array(True), residuals=res, tolerance=eps))
-                        break
-                    if it == self.max_iterations:
-                        break
-                atol = self.cg_fraction * (np.sqrt(dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
-                self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
-                self.last_penalties = st.penalties
-                self.cols, self.pairs = st.consensus()
+            self.top(self.start)
+            it, reason = run_iterations(self, self.start, self.max_iterations)
+        converged, interrupted = reason == CONVERGED, reason == INTERRUPTED
+        res, eps, st = self.res, self.eps, self.state
         if not converged and not interrupted:
             warnings.warn(f"all-pairs ADMM did not converge in {self.max_iterations} iterations "
                           f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning,

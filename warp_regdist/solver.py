@@ -38,7 +38,7 @@ from .operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
 from .processes import WorkerPool, processes_available
-from .admm import PenaltySchedule, check_schedule
+from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .regularizers import build_regularizer
 from .tolerances import tolerances
@@ -427,14 +427,6 @@ class DistanceSolver:
         lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, eps_dual_abs + eps_rel_dual * load_norm
         ws["lane"].assign(lane.reshape(LANE_ROWS, nb, W))
         ws["pcg"].configure(tol.cg_rtol, tol.cg_max_iterations)
-        rho_table = ws["rho_table"].numpy() if self.device.is_cpu else np.zeros(_RHO_TABLE)
-
-        def penalty_ahead(it):
-            """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
-            rho_table[it % _RHO_TABLE] = schedule.rho(it + offset)
-            if not self.device.is_cpu:
-                ws["rho_table"].assign(rho_table)
-
         batch = _ColumnBatch(self, ws, W, nb, tol.change_window, dict(
             eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
             eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
@@ -442,44 +434,11 @@ class DistanceSolver:
             # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
             cg_primal=tol.cg_primal_fraction * L ** (0.5 * self.mesh.element_dim - 1.0),
             alpha=self.alpha, shift=shift, scale=scale, length=L))
-
-        iterations = np.full(k, -1)
-        out = np.zeros((n, k))
-        y_out = np.zeros((m, 3, k)) if keep_duals else None
-        r_out, s_out, rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
-        system_rho = None
-        penalty_ahead(0)
-        batch.check()
-        it = 0
-        last_print = t0
-        while True:
-            state = ws["lane"].numpy().reshape(LANE_ROWS, -1)
-            live = batch.blocks * W
-            new = np.flatnonzero((state[DONE, :live] > 0) & (slot_col[:live] >= 0))
-            if new.size:  # each column as frozen at the iterate that met its stopping test
-                cols = slot_col[new]
-                iterations[cols] = state[IT_OUT, new]
-                self._collect(ws, True, new, cols, out, y_out)
-                r_out[cols], s_out[cols], rho_out[cols] = state[R_OUT, new], state[S_OUT, new], state[RHO_OUT, new]
-                slot_col[new] = -1
-            if verbose and (time.perf_counter() - last_print > 2.0):
-                last_print = time.perf_counter()
-                print(f"  ADMM iteration {it}: {np.count_nonzero(iterations >= 0)}/{k} converged, "
-                      f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
-                      f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {last_print - t0:.1f} s",
-                      file=sys.stderr)
-            if np.all(iterations >= 0) or it == tol.max_iterations or interrupt.requested():
-                break
-            if new.size:
-                batch.compact(slot_col)
-            for _ in range(min(_CHECK_EVERY[self.device.is_cuda], tol.max_iterations - it)):
-                rho = schedule.rho(it + offset)
-                if not self._scaled and rho != system_rho:
-                    system_rho = rho
-                    ws["pcg"].set_matrix(self.regularizer.system(rho))
-                penalty_ahead(it + 1)
-                batch.iterate()
-                it += 1
+        run = _BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
+        it, reason = run_iterations(run, 0, tol.max_iterations, _CHECK_EVERY[self.device.is_cuda])
+        iterations, out, y_out, r_out, s_out, rho_out = (run.iterations, run.out, run.y_out, run.r_out, run.s_out,
+                                                          run.rho_out)
+        state = ws["lane"].numpy().reshape(LANE_ROWS, -1)  # the last iterate's, tested or not (Ctrl-C)
 
         late = np.flatnonzero(slot_col[:batch.blocks * W] >= 0)
         if late.size:
@@ -495,7 +454,7 @@ class DistanceSolver:
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
             primal_residual=r_out, dual_residual=s_out, penalty=rho_out,
             cg_iterations=int(ws["step"].numpy()[CG_TOTAL]), seconds=time.perf_counter() - t0,
-            interrupted=bool(not converged.all() and it < tol.max_iterations and interrupt.requested()))
+            interrupted=reason == INTERRUPTED)
         if keep_duals:
             res["duals"] = y_out
         return res
@@ -538,6 +497,73 @@ def _lanes(values, nb, W):
 def _max_ratio(a, b):
     """max(a / b) over the entries with b > 0 (a column made of sources only has a = b = 0)."""
     return float(np.max(np.divide(a, b, out=np.zeros_like(a), where=b > 0), initial=0.0))
+
+
+class _BatchIterations:
+    """One batched single-source ADMM as the problem of :func:`~warp_regdist.admm.run_iterations`.
+
+    ``status`` reads the device's per-lane flags, collects the columns whose test first held
+    (frozen on the device at that iterate) and reports progress; ``advance`` compacts the batch
+    when columns left it, then runs iterations with the schedule's penalties (written one
+    iteration ahead into the device's table, which the device's test reads).
+    """
+
+    def __init__(self, solver, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0):
+        n, m = solver.mesh.n_vertices, solver.mesh.n_elements
+        self.solver, self.ws, self.batch, self.slot_col = solver, ws, batch, slot_col
+        self.schedule, self.offset, self.verbose, self.t0 = schedule, offset, verbose, t0
+        self.iterations = np.full(k, -1)
+        self.out = np.zeros((n, k))
+        self.y_out = np.zeros((m, 3, k)) if keep_duals else None
+        self.r_out, self.s_out, self.rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
+        self.compact_due = False
+        self.system_rho = None
+        self.last_print = t0
+        self.rho_table = ws["rho_table"].numpy() if solver.device.is_cpu else np.zeros(_RHO_TABLE)
+        self.penalty_ahead(0)
+        batch.check()
+
+    def penalty_ahead(self, it):
+        """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
+        self.rho_table[it % _RHO_TABLE] = self.schedule.rho(it + self.offset)
+        if not self.solver.device.is_cpu:
+            self.ws["rho_table"].assign(self.rho_table)
+
+    def status(self, it):
+        """Collect the columns done by iteration ``it``; True when all are."""
+        W, slot_col = self.batch.W, self.slot_col
+        state = self.ws["lane"].numpy().reshape(LANE_ROWS, -1)
+        live = self.batch.blocks * W
+        new = np.flatnonzero((state[DONE, :live] > 0) & (slot_col[:live] >= 0))
+        if new.size:  # each column as frozen at the iterate that met its stopping test
+            cols = slot_col[new]
+            self.iterations[cols] = state[IT_OUT, new]
+            self.solver._collect(self.ws, True, new, cols, self.out, self.y_out)
+            self.r_out[cols], self.s_out[cols] = state[R_OUT, new], state[S_OUT, new]
+            self.rho_out[cols] = state[RHO_OUT, new]
+            slot_col[new] = -1
+        self.compact_due = new.size > 0
+        if self.verbose and (time.perf_counter() - self.last_print > 2.0):
+            self.last_print = time.perf_counter()
+            print(f"  ADMM iteration {it}: {np.count_nonzero(self.iterations >= 0)}/{self.iterations.size} converged, "
+                  f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
+                  f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {self.last_print - self.t0:.1f} s",
+                  file=sys.stderr)
+        return bool(np.all(self.iterations >= 0))
+
+    def advance(self, it, count):
+        """Iterations it .. it + count - 1 (after moving the running columns into fewer blocks)."""
+        if self.compact_due:
+            self.batch.compact(self.slot_col)
+            self.compact_due = False
+        sv = self.solver
+        for j in range(it, it + count):
+            rho = self.schedule.rho(j + self.offset)
+            if not sv._scaled and rho != self.system_rho:
+                self.system_rho = rho
+                self.ws["pcg"].set_matrix(sv.regularizer.system(rho))
+            self.penalty_ahead(j + 1)
+            self.batch.iterate()
 
 
 class _ColumnBatch:
