@@ -135,6 +135,22 @@ def test_batch_columns_match_single_solves_across_blocks(device):
         assert _rel(many.distance[:, k], res.distance) <= 1e-12, k
 
 
+def test_wide_batch_threads_take_rows_of_all_blocks(device):
+    """330 columns = 42 lane blocks of 8 (float64): from 32 blocks a CPU thread takes one row of
+    every block (kernels/lanes.py thread_span), adds the rows' sums in another order, and keeps
+    that layout while the batch compacts below 32 blocks; every column must still be its single
+    solve's distance (to rounding: the sums' order differs from a single solve's)."""
+    V, F = _bumpy_sphere()
+    sets = [[i % len(V), (7 * i + 3) % len(V)] for i in range(330)]  # 42 blocks of 8 lanes
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device, workers=1)
+    many = solver.solve_many(sets)
+    assert many.converged.all() and len(set(many.iterations.tolist())) > 3
+    for k in (0, 1, 57, 200, 329):
+        res = solver.solve(sets[k])
+        assert abs(int(many.iterations[k]) - int(res.iterations)) <= 1, k
+        assert _rel(many.distance[:, k], res.distance) <= 1e-6, k
+
+
 def test_tightened_tolerances_converge(device):
     # 10x tighter than the defaults on the 42-vertex bumpy sphere: with u-steps solved only
     # to a fixed tolerance, sources 1, 4 and 7 stalled with r ~2x above eps_pri for 5000
