@@ -734,6 +734,6 @@ class _Run:
         return AllPairsResult(distance=st.distance(), iterations=it, converged=converged, interrupted=interrupted,
                               residuals=res, tolerance=eps, history=np.array(self.history).reshape(-1, 7),
                               change=float(self.change_test.change[0]),
-                              cg_iterations=self.cg_total, seconds=self.seconds_before + time.perf_counter() - t0,
+                              cg_iterations=self.cg_total, seconds=self._elapsed(),
                               memory_bytes=self.memory,
                               checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint))
