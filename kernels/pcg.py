@@ -16,7 +16,6 @@ of launches (replayable, capturable as a graph):
   r.z, and slot (k + 1) % 3 is cleared for the next iteration (no reset launch).
 - ``bb`` (nb,): |b|^2 per lane; ``converged`` (nb,): 1 on lanes with |r|^2 <= tol2,
   tol2 = max(rtol2 |b|^2, atol2) per lane (``rtol2`` (1,), ``atol2`` (nb,)).
-
 - ``coef`` (2, nb): per-lane BETA and ALPHA of the current iteration, computed once per
   block by one-thread-per-block kernels, so the row loops only read them.
 
