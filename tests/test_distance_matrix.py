@@ -89,25 +89,49 @@ def test_cluster_equals_local(mesh, rows, client, tmp_path):
     np.testing.assert_allclose(stored[:], sym, rtol=0, atol=2e-3 * sym.max())
 
 
+class _DieInBlockOnce(distributed.WorkerPlugin):
+    """Makes the worker that first starts the block whose first source is ``first`` exit at once
+    (``os._exit``, as a crash or an out-of-memory kill would), once per ``marker`` file.
+
+    The death happens inside the block's task, so the scheduler must run that block again on a
+    worker, whatever the timing of the other blocks."""
+
+    def __init__(self, marker, first):
+        self.marker, self.first = marker, first
+
+    def setup(self, worker):
+        import warp_regdist.distributed as wd
+
+        self.solve_rows = solve_rows = wd.solve_rows
+        marker, first = self.marker, self.first
+
+        def die_once(solver, sources):
+            if sources[0] == first:
+                try:
+                    os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+                except FileExistsError:
+                    pass
+                else:
+                    os._exit(1)
+            return solve_rows(solver, sources)
+
+        wd.solve_rows = die_once
+
+    def teardown(self, worker):
+        import warp_regdist.distributed as wd
+
+        wd.solve_rows = self.solve_rows
+
+
 def test_killed_worker_blocks_are_solved_again(mesh, rows, client, tmp_path):
-    marker = tmp_path / "killed"
-    before = set(client.scheduler_info()["workers"])
-
-    def exit_once(path):
-        if not os.path.exists(path):
-            open(path, "w").close()
-            os._exit(1)
-        return "survived"
-
-    def kill_a_worker(done, total, seconds):
-        if done == 1:  # the other worker still holds queued or finished blocks
-            victim = sorted(client.scheduler_info()["workers"])[0]
-            killer = client.submit(exit_once, str(marker), workers=[victim], allow_other_workers=True,
-                                   pure=False, priority=100)
-            assert killer.result(timeout=120) == "survived"
-
-    D = _matrix(mesh, client=client, out=str(tmp_path / "D.npy"), progress=kill_a_worker)
-    assert marker.exists() and set(client.scheduler_info()["workers"]) != before
+    marker = tmp_path / "died"
+    client.register_plugin(_DieInBlockOnce(str(marker), int(SOURCES[CHUNK])), name="die-in-block-once")
+    try:
+        D = _matrix(mesh, client=client, out=str(tmp_path / "D.npy"))
+    finally:
+        client.unregister_worker_plugin("die-in-block-once")
+        client.wait_for_workers(2, timeout=120)  # the nanny's restarted worker, for the next tests
+    assert marker.exists()  # a worker died inside block 1's task
     assert not np.isnan(D).any()
     np.testing.assert_allclose(D, rows[1], rtol=0, atol=CLUSTER * rows[1].max())
 
