@@ -112,17 +112,31 @@ def test_interrupt_returns_the_iterate_and_checkpoints(sphere642, tmp_path):
     assert not rest.interrupted and np.array_equal(rest.distance, whole.distance)
 
 
-def test_solve_many_interrupt_returns_current_iterates():
+def test_solve_many_interrupt_returns_current_iterates(monkeypatch):
+    """A Ctrl-C in the parent (sent right after its own part's 5th iteration) stops the worker
+    process's part too: every column returns its current iterate, flagged not converged."""
+    import warp_regdist.solver as solver_module
+
     V, F = meshes.icosphere(4, 1.0)
     solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu", workers=2)
     sets = [[i] for i in range(16)]
+    run_iterations = solver_module.run_iterations
+
+    def ctrl_c_after_five(problem, start, max_iterations, check_every=1):
+        advance = problem.advance
+
+        def advance_then_ctrl_c(it, count):
+            advance(it, count)
+            if it < 5 <= it + count:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        problem.advance = advance_then_ctrl_c
+        return run_iterations(problem, start, max_iterations, check_every)
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        with wrd.tolerances.override(max_iterations=2):
-            solver.solve_many(sets)  # starts the worker process: the interrupt reaches it mid-solve
-        timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))
+        monkeypatch.setattr(solver_module, "run_iterations", ctrl_c_after_five)
         with wrd.tolerances.override(eps_rel=1e-9, eps_rel_dual=1e-9):  # would run to max_iterations
-            timer.start()
             res = solver.solve_many(sets)
     solver.close()
     assert res.interrupted and not res.converged.any()
