@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from . import interrupt
+from .processes import check_workers
 
 __all__ = ["run_iterations", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule", "ChangeTest",
            "ExtrapolatedChangeTest", "check_schedule"]
@@ -38,6 +39,8 @@ def run_iterations(problem, start, max_iterations, check_every=1):
     next test. The loop stops at the first passing test, at ``max_iterations`` (the last advance
     is shortened to end there), or at a Ctrl-C caught by :func:`warp_regdist.interrupt.catch_interrupt`
     (checked before each test: an interrupted run returns after the advance under way, untested).
+    Before each test it also raises :class:`~warp_regdist.processes.WorkerError` if a worker
+    process of this process has died.
 
     Returns
     -------
@@ -46,6 +49,7 @@ def run_iterations(problem, start, max_iterations, check_every=1):
     """
     it = start
     while True:
+        check_workers()
         if interrupt.requested():
             return it, INTERRUPTED
         if problem.status(it):

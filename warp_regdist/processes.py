@@ -10,9 +10,15 @@ crashed ``all_pairs`` under load). So the solvers use more cores through process
   object ``factory(*args, index)`` and then runs the method calls the parent sends it over a
   pipe. The workers live in their own session: a Ctrl-C in the terminal reaches the parent
   only, which decides what it means (see :mod:`warp_regdist.interrupt`) and raises the
-  workers' shared stop flag.
+  workers' shared stop flag. A worker exits within a fraction of a second of its parent's
+  death, however the parent died (SIGKILL, SIGTERM, the out-of-memory killer): a watchdog
+  thread compares its parent's pid with the one it was started by. A worker that dies makes
+  the parent raise :class:`WorkerError` naming the worker and the signal, when the parent
+  next waits for it, or earlier at :func:`check_workers` (the ADMM loop calls it before every
+  test) while the parent runs its own part inside ``with watch(pool):``.
 - :class:`SharedArrays` lays named numpy arrays out in one anonymous shared mapping
-  (``memfd``; not limited by the size of /dev/shm) that the workers map too; :meth:`warp`
+  (``memfd`` named ``warp_regdist_shared_<parent pid>``; not limited by the size of /dev/shm,
+  freed by the kernel when the last process holding it exits) that the workers map too; :meth:`warp`
   views an array as a ``wp.array`` on the CPU device without copying.
 
 Linux only (``os.memfd_create``, fd passing); elsewhere :func:`processes_available` is
@@ -21,11 +27,15 @@ False and the solvers use one process.
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 import os
 import pickle
+import signal
 import subprocess
 import sys
+import threading
+import time
 import weakref
 from multiprocessing.connection import Connection
 
@@ -33,9 +43,11 @@ import numpy as np
 
 from . import interrupt
 
-__all__ = ["WorkerPool", "SharedArrays", "processes_available", "WorkerError"]
+__all__ = ["WorkerPool", "SharedArrays", "processes_available", "WorkerError", "watch", "check_workers"]
 
 _ALIGN = 64
+_WATCHED = []  # the pools whose workers run calls that the current loop of this process waits for
+_PARENT_POLL = 0.2  # seconds between a worker's checks that its parent is alive
 
 
 class WorkerError(RuntimeError):
@@ -68,7 +80,7 @@ class SharedArrays:
             offset += -(-int(np.prod(shape)) * dtype.itemsize // _ALIGN) * _ALIGN
         self.size = max(offset, _ALIGN)
         if fd is None:
-            fd = os.memfd_create("warp_regdist_shared")
+            fd = os.memfd_create(f"warp_regdist_shared_{os.getpid()}")
             os.ftruncate(fd, self.size)
             self._owner = weakref.finalize(self, os.close, fd)
         self.fd = fd
@@ -104,7 +116,7 @@ import sys
 import warp
 warp.config.log_level = warp.LOG_WARNING
 from warp_regdist.processes import _serve
-_serve(int(sys.argv[1]), int(sys.argv[2]))
+_serve(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
 """
 
 
@@ -130,12 +142,13 @@ class WorkerPool:
         fds = [s.fd for s in shared] + [self.stop_flag.fd]
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        self.first_index = first_index
         self._procs, self._conns = [], []
         try:
             for i in range(count):
                 down_r, down_w = os.pipe()
                 up_r, up_w = os.pipe()
-                proc = subprocess.Popen([sys.executable, "-c", _WORKER, str(down_r), str(up_w)],
+                proc = subprocess.Popen([sys.executable, "-c", _WORKER, str(down_r), str(up_w), str(os.getpid())],
                                         pass_fds=(down_r, up_w, *fds), env=env, stdin=subprocess.DEVNULL,
                                         start_new_session=True)
                 os.close(down_r)
@@ -157,8 +170,16 @@ class WorkerPool:
 
     def start(self, method, calls):
         """Send ``method(*calls[i])`` to worker i (no waiting)."""
-        for conn, args in zip(self._conns, calls):
-            conn.send((method, args))
+        for i, (conn, args) in enumerate(zip(self._conns, calls)):
+            try:
+                conn.send((method, args))
+            except OSError:  # a broken pipe: the worker is gone
+                self._procs[i].wait()
+                self._died(i)
+
+    def alive(self):
+        """Whether every worker process is still running."""
+        return all(proc.poll() is None for proc in self._procs)
 
     def finish(self):
         """The results of the calls sent by :meth:`start`, one per worker."""
@@ -172,14 +193,50 @@ class WorkerPool:
         try:
             status, value = self._conns[i].recv()
         except (EOFError, OSError):
-            code = self._procs[i].wait()
-            raise WorkerError(f"worker process {self._procs[i].pid} died (exit status {code})") from None
+            self._procs[i].wait()
+            self._died(i)
         if status == "error":
-            raise WorkerError(f"worker process {self._procs[i].pid} failed:\n{value}")
+            raise WorkerError(f"worker process {i + self.first_index} (pid {self._procs[i].pid}) failed:\n{value}")
         return value
+
+    def check(self):
+        """Raise :class:`WorkerError` if a worker process has exited (the pool is then closed)."""
+        for i, proc in enumerate(self._procs):
+            if proc.poll() is not None:
+                self._died(i)
+
+    def _died(self, i):
+        """Close the pool and raise the :class:`WorkerError` of worker i's death."""
+        proc = self._procs[i]
+        code = proc.returncode
+        if code < 0:
+            name = signal.Signals(-code).name if -code in signal.valid_signals() else f"signal {-code}"
+            how = f"was killed by {name}" + (" (the out-of-memory killer sends it, as does kill -9)"
+                                              if -code == signal.SIGKILL else "")
+        else:
+            how = f"exited with status {code}"
+        self.close()
+        raise WorkerError(f"worker process {i + self.first_index} (pid {proc.pid}) {how}; its part of the work "
+                          "is lost (an all-pairs run resumes from its last checkpoint)") from None
 
     def close(self):
         _shutdown(self._procs, self._conns)
+
+
+@contextlib.contextmanager
+def watch(pool):
+    """Make :func:`check_workers` check ``pool`` within the block (while the parent does its own part)."""
+    _WATCHED.append(pool)
+    try:
+        yield pool
+    finally:
+        _WATCHED.remove(pool)
+
+
+def check_workers():
+    """Raise :class:`WorkerError` if a worker process of a pool under :func:`watch` has died."""
+    for pool in list(_WATCHED):
+        pool.check()
 
 
 def _shutdown(procs, conns):
@@ -217,10 +274,18 @@ class _Channel:
         self._write.close()
 
 
-def _serve(read_fd, write_fd):
-    """Worker main loop: build the object, then answer method calls until told to stop."""
+def _exit_with_parent(parent):
+    """Exit this process as soon as its parent ``parent`` (a pid) is gone (it is then reparented)."""
+    while os.getppid() == parent:
+        time.sleep(_PARENT_POLL)
+    os._exit(1)
+
+
+def _serve(read_fd, write_fd, parent):
+    """Worker main loop: build the object, then answer method calls until told to stop or the parent dies."""
     import traceback
 
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     os.dup2(2, 1)  # the channel is a pipe of its own; anything printed goes to stderr
     channel = _Channel(read_fd, write_fd)
     try:

@@ -37,7 +37,7 @@ from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
-from .processes import WorkerPool, processes_available
+from .processes import WorkerPool, processes_available, watch
 from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .regularizers import build_regularizer
@@ -291,9 +291,11 @@ class DistanceSolver:
                 settings = dataclasses.asdict(tolerances)
                 pool.start("solve", [(g, W, settings, st, keep_duals, schedule) for g, st in zip(groups[1:], starts[1:])])
                 try:
-                    parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals, schedule)]
+                    with watch(pool):
+                        mine = self._admm(groups[0], workspace, verbose, starts[0], keep_duals, schedule)
                 finally:
-                    parts += pool.finish()
+                    others = pool.finish()
+                parts = [mine] + others
         keys = ("distance", "iterations", "converged", "primal_residual", "dual_residual", "penalty")
         res = DistanceResult(
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
@@ -322,8 +324,9 @@ class DistanceSolver:
 
     # ------------------------------------------------------------------ ADMM
     def _worker_pool(self, count):
-        """At least ``count`` worker processes, each holding a copy of this solver (kept until :meth:`close`)."""
-        if self._pool is None or len(self._pool) < count:
+        """At least ``count`` running worker processes, each holding a copy of this solver (kept until
+        :meth:`close`; a pool with a dead worker is replaced)."""
+        if self._pool is None or len(self._pool) < count or not self._pool.alive():
             self.close()
             self._pool = WorkerPool(_SolverCopy, (self._copy_arguments,), count, first_index=1)
         return self._pool
