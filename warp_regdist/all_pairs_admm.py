@@ -44,6 +44,7 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -51,6 +52,7 @@ import os
 import shutil
 import time
 import warnings
+import zipfile
 
 import numpy as np
 import scipy.sparse as sp
@@ -67,6 +69,7 @@ from .processes import SharedArrays, WorkerPool, processes_available
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, ExtrapolatedChangeTest, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
+from .file_lock import FileLock
 from .solver import ConvergenceWarning
 from .tolerances import tolerances
 
@@ -415,7 +418,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         ``checkpoint_seconds``, when the iteration cap is reached unconverged, when the
         run is interrupted, and at convergence (the final iterate and result: a warm start for
         ``initial``; resumed, it returns that result). Refused before any allocation when the
-        file system lacks the room.
+        file system lacks the room, or when another run is writing it (it holds the lock file
+        ``checkpoint + ".lock"`` for the length of the run).
     checkpoint_seconds : float
         Interval between checkpoints (> 0).
     resume : str or os.PathLike or None
@@ -439,7 +443,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     ValueError
         Bad arguments, a mesh with several connected components, vertices in no face, a
         footprint above the available memory or a checkpoint above the free disk space (the
-        message gives both), or a resume file of another problem.
+        message gives both), a resume or initial file of another problem, or one that is not a
+        complete checkpoint (truncated, foreign, arrays of other shapes or dtypes; read as
+        data, never unpickled).
     """
     t0 = time.perf_counter()
     if not isinstance(mesh, Mesh):
@@ -475,13 +481,32 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if resume is not None and initial is not None:
         raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: {os.fspath(resume)!r} "
                          f"and {os.fspath(initial)!r}")
-    saved = _read_checkpoint(resume, fingerprint) if resume is not None else None
-    start = (_read_checkpoint(initial, fingerprint, ("mesh_sha256", "n_vertices", "dtype"), "initial")
-             if initial is not None else None)
     if checkpoint is not None:
         _check_checkpoint_room(checkpoint, checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations))
-    dev = parse_device(device)
-    n, m = mesh.n_vertices, mesh.n_elements
+    with contextlib.ExitStack() as stack:
+        if checkpoint is not None:
+            stack.enter_context(FileLock(checkpoint, "the checkpoint"))
+        saved = _read_checkpoint(resume, fingerprint, mesh.n_elements) if resume is not None else None
+        start = (_read_checkpoint(initial, fingerprint, mesh.n_elements, ("mesh_sha256", "n_vertices", "dtype"),
+                                  "initial") if initial is not None else None)
+        dev = parse_device(device)
+        memory = _check_memory(mesh.n_vertices, mesh.n_elements, dtype, dev)
+        if saved is not None and "final" in saved:
+            return _final_result(saved, memory, checkpoint)
+        state = stack.enter_context(contextlib.closing(
+            _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)))
+        run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
+                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change,
+                   PenaltySchedule.all_pairs(tolerances, state.L) if schedule is None else schedule)
+        if saved is not None:
+            run.restore(saved)
+        if start is not None:
+            run.warm_start(start)
+        return run.iterate(t0)
+
+
+def _check_memory(n, m, dtype, dev):
+    """The footprint (bytes) of an all-pairs run; ValueError when it exceeds the available memory."""
     device_bytes, host_bytes = memory_estimate(n, m, dtype, dev)
     if dev.is_cuda:
         cpu_available = _available_memory(wp.get_device("cpu"))
@@ -495,22 +520,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
             raise ValueError(f"expected enough memory for {n} vertices in {dtype}: needs "
                              f"{(device_bytes + host_bytes) / 1e9:.2f} GB, got {available / 1e9:.2f} GB available"
                              + (" (float32 halves it)" if dtype == "float64" else ""))
-    memory = device_bytes + host_bytes
-    if saved is not None and "final" in saved:
-        return _final_result(saved, memory, checkpoint)
-
-    state = _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)
-    try:
-        run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change,
-                   PenaltySchedule.all_pairs(tolerances, state.L) if schedule is None else schedule)
-        if saved is not None:
-            run.restore(saved)
-        if start is not None:
-            run.warm_start(start)
-        return run.iterate(t0)
-    finally:
-        state.close()
+    return device_bytes + host_bytes
 
 
 def checkpoint_bytes(n, m, dtype, max_iterations):
@@ -545,15 +555,18 @@ def _fingerprint(mesh, alpha_hat, dtype, rho2_factor):
                 dtype=dtype, rho2_factor=float(rho2_factor))
 
 
-def _read_checkpoint(path, fingerprint, keys=None, role="resume"):
+def _read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
     """The arrays of checkpoint ``path`` (the ``role`` argument) after checking that it agrees with
-    ``fingerprint`` on ``keys`` (None: all, the same problem)."""
+    ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem."""
+    path = os.fspath(path)
     try:
-        with np.load(os.fspath(path), allow_pickle=False) as f:
+        with np.load(path, allow_pickle=False) as f:
             saved = {k: f[k] for k in f.files}
         theirs = json.loads(str(saved["fingerprint"]))
-    except (OSError, ValueError, KeyError, EOFError) as exc:
-        raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {os.fspath(path)!r} "
+        if not isinstance(theirs, dict):
+            raise ValueError(f"a fingerprint {theirs!r}")
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError) as exc:
+        raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
                          f"({type(exc).__name__}: {exc})") from None
     differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
     if differ:
@@ -561,8 +574,50 @@ def _read_checkpoint(path, fingerprint, keys=None, role="resume"):
         got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
         what = "this problem" if keys is None else "this mesh and dtype"
         raise ValueError(f"expected a checkpoint of {what} ({shown}), got one of another problem ({got}) "
-                         f"in {os.fspath(path)!r}")
+                         f"in {path!r}")
+    _check_checkpoint_arrays(saved, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path, role)
     return saved
+
+
+def _checkpoint_shapes(n, m, dtype):
+    """{name: (shape, dtype)} of the arrays an all-pairs checkpoint of n vertices and m triangles may hold."""
+    W = lane_width(SCALARS[dtype], n)
+    nb = -(-n // W)
+    state, f8 = ((n, nb, W), dtype), "float64"
+    shapes = {name: state for name in STATE_ROWS + ("change_snapshot",)}
+    shapes.update(v=((m, 3, nb, W), dtype), iteration=((), "int64"), rho_v=((), f8), cg_iterations=((), "int64"),
+                  seconds=((), f8), penalties=((2,), f8), cols=((3, nb * W), f8), pairs=((5,), f8),
+                  change=((2,), f8), residuals=((7,), f8), tolerance=((7,), f8), final=((), "bool"))
+    return shapes
+
+
+def _check_checkpoint_arrays(saved, n, m, dtype, path, role):
+    """ValueError unless ``saved`` holds the arrays a run of this problem needs, of their shapes and dtypes."""
+    shapes = _checkpoint_shapes(n, m, dtype)
+    if role == "initial":
+        required = ("X", "U", "H", "v", "rho_v")
+    else:
+        required = ("X", "U", "H", "v", "iteration", "rho_v", "cg_iterations", "seconds", "history")
+        required += ("residuals", "tolerance") if "final" in saved else ("DZ", "DZ_acc", "DY_acc")
+        if "iteration" in saved and saved["iteration"].ndim == 0 and saved["iteration"] > 0:
+            required += ("penalties", "cols", "pairs")
+    missing = [name for name in required if name not in saved]
+    if missing:
+        raise ValueError(f"expected {role} as a complete all-pairs checkpoint, got {path!r} without "
+                         f"{', '.join(missing)}")
+    for name, a in saved.items():
+        if name == "history":
+            ok = a.ndim == 2 and a.shape[1] == 7 and a.dtype == np.float64
+            expected = "(k, 7) float64"
+        elif name in shapes:
+            shape, kind = shapes[name]
+            ok = a.shape == shape and a.dtype == np.dtype(kind)
+            expected = f"{shape} {kind}"
+        else:
+            continue
+        if not ok:
+            raise ValueError(f"expected {role} checkpoint array {name!r} of shape and dtype {expected}, got "
+                             f"{a.shape} {a.dtype} in {path!r}")
 
 
 def _final_result(saved, memory, checkpoint):

@@ -4,7 +4,11 @@ A (k, n) matrix is written in blocks of ``chunk`` consecutive rows. On disk, nex
 matrix ``D.zarr`` (or ``D.npy``) lies the directory ``D.zarr.progress`` holding the problem's
 fingerprint (``fingerprint.json``, written before the matrix) and one empty marker file per
 block, created only after the block's rows are on disk: a block half-written by a killed run
-has no marker and is redone. An ``out`` whose fingerprint differs from the call's is refused.
+has no marker and is redone. An ``out`` whose fingerprint differs from the call's, or whose
+files are not what this module writes (truncated, foreign, another shape or dtype), is
+refused with a ValueError; files are read as data, never unpickled. While a run writes
+``D.npy`` it holds ``D.npy.lock`` (:class:`~warp_regdist.file_lock.FileLock`): a second run on
+the same path is refused.
 
 Symmetrization (D[r, src[c]] and D[c, src[r]] replaced by their mean) works block by block on
 the stored rows: while solving, each block's source columns are also written, tile-major,
@@ -20,6 +24,8 @@ import os
 import shutil
 
 import numpy as np
+
+from .file_lock import FileLock
 
 __all__ = ["MemoryRows", "DiskRows", "NpyFile", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
 
@@ -45,6 +51,12 @@ class MemoryRows:
         self.chunk = chunk
         self.blocks = -(-shape[0] // chunk)
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
     def todo(self):
         """Indices of the row blocks still to solve."""
         return list(range(self.blocks))
@@ -66,8 +78,16 @@ class NpyFile:
 
     def __init__(self, path, shape=None, dtype=None):
         """Open ``path``, or create it (sparse, zeros) when ``shape`` and ``dtype`` are given."""
-        m = (np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape) if shape is not None
-             else np.load(path, mmap_mode="r"))
+        if shape is not None:
+            m = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+        else:
+            try:
+                m = np.load(path, mmap_mode="r", allow_pickle=False)
+                if not isinstance(m, np.memmap):
+                    raise ValueError(f"a {type(m).__name__}")
+            except (OSError, ValueError, EOFError) as exc:
+                raise ValueError(f"expected {path!r} as a .npy array written by distance_matrix, got an unreadable "
+                                 f"file ({type(exc).__name__}: {exc})") from None
         self.path, self.shape, self.dtype, self.offset = path, m.shape, m.dtype, m.offset
         del m
 
@@ -95,12 +115,23 @@ class DiskRows:
         if self.zarr:
             import zarr  # the 'distributed' extra; imported first, so nothing is created without it
             self._zarr = zarr
-        stored = self._stored_fingerprint()
-        if stored is None:
-            self._create(fingerprint)
-        else:
-            _check_fingerprint(stored, fingerprint, self.path)
-            self.array = self._open()
+        self.lock = FileLock(self.path, "the matrix").acquire()
+        try:
+            stored = self._stored_fingerprint()
+            if stored is None:
+                self._create(fingerprint)
+            else:
+                _check_fingerprint(stored, fingerprint, self.path)
+                self.array = self._open()
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.lock.release()
 
     def _stored_fingerprint(self):
         exists = os.path.exists(self.path)
@@ -113,8 +144,15 @@ class DiskRows:
         if not exists:  # killed between the record and the matrix, or the matrix was removed
             shutil.rmtree(self.progress)
             return None
-        with open(record, encoding="utf-8") as f:
-            return json.load(f)
+        try:
+            with open(record, encoding="utf-8") as f:
+                stored = json.load(f)
+        except (OSError, ValueError) as exc:
+            stored = exc
+        if not isinstance(stored, dict):
+            raise ValueError(f"expected {record!r} as the JSON fingerprint that distance_matrix writes, got "
+                             f"{type(stored).__name__}: {stored}; remove {self.path!r} and its progress record")
+        return stored
 
     def _create(self, fingerprint):
         os.makedirs(self.progress)
@@ -127,7 +165,14 @@ class DiskRows:
             self.array = NpyFile(self.path, self.shape, self.dtype)
 
     def _open(self):
-        array = self._zarr.open_array(store=self.path, mode="r+") if self.zarr else NpyFile(self.path)
+        if self.zarr:
+            try:
+                array = self._zarr.open_array(store=self.path, mode="r+")
+            except Exception as exc:  # zarr's errors differ between versions
+                raise ValueError(f"expected {self.path!r} as a Zarr array written by distance_matrix, got an "
+                                 f"unreadable store ({type(exc).__name__}: {exc})") from None
+        else:
+            array = NpyFile(self.path)
         if tuple(array.shape) != tuple(self.shape) or np.dtype(array.dtype) != self.dtype:
             raise ValueError(f"expected {self.path!r} of shape {self.shape} and dtype {self.dtype}, "
                              f"got shape {tuple(array.shape)} and dtype {array.dtype}")
@@ -182,6 +227,10 @@ class DiskRows:
         todo = [b for b in range(nb) if not self._done("symmetric", b)]
         if todo:
             tiles = NpyFile(self.tiles_path)
+            if tiles.shape != (nb, nb, c, c) or tiles.dtype != self.dtype:
+                raise ValueError(f"expected {self.tiles_path!r} of shape {(nb, nb, c, c)} and dtype {self.dtype}, "
+                                 f"got shape {tiles.shape} and dtype {tiles.dtype}; remove {self.path!r} and its "
+                                 "progress record")
         for block in todo:
             lo, hi = block * c, min(k, (block + 1) * c)
             s_rows = tiles.read(block * nb * c * c, nb * c * c).reshape(nb, c, c).transpose(1, 0, 2)
@@ -197,7 +246,7 @@ class DiskRows:
 
     def result(self):
         """The Zarr array, or the ``.npy`` as a read-write memory map."""
-        return self.array if self.zarr else np.load(self.path, mmap_mode="r+")
+        return self.array if self.zarr else np.load(self.path, mmap_mode="r+", allow_pickle=False)
 
 
 def open_rows(out, shape, chunk, dtype, fingerprint):

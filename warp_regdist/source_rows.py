@@ -59,7 +59,8 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         Write the matrix to this ``.zarr`` (Zarr array, chunks of (chunk, n), NaN where not yet
         written; needs zarr) or ``.npy`` (0 where not yet written) path, block by block,
         never holding the whole matrix in memory. Run again with the same arguments, it skips
-        the blocks already written; a path holding another problem is refused.
+        the blocks already written; a path holding another problem, a damaged or foreign file,
+        or a path another run is writing (its ``.lock`` is held) is refused.
     progress : callable or None
         ``progress(blocks_done, blocks_total, seconds)`` after each block is stored (and once
         at the start, counting the blocks found done).
@@ -104,27 +105,27 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     fingerprint = dict(mesh_sha256=mesh_sha256(mesh), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
                        sources_sha256=hashlib.sha256(src.tobytes()).hexdigest(), k=int(src.size), chunk=chunk,
                        symmetrize=bool(symmetrize))
-    store = open_rows(out, (src.size, n), chunk, dtype, fingerprint)
-    todo = store.todo()
-    blocks = {b: src[b * chunk:(b + 1) * chunk] for b in todo}
-    if client is not None:
-        solved = distributed.solve_blocks(client, mesh, problem, blocks)
-    else:
-        solved = _solve_blocks_here(DistanceSolver(mesh, workers=workers, **problem), blocks) if blocks else iter(())
-    t0 = time.perf_counter()
-    done = store.blocks - len(todo)
-    if progress is not None:
-        progress(done, store.blocks, 0.0)
-    for block, rows, messages in solved:
-        for message in messages:
-            warnings.warn(message, ConvergenceWarning, stacklevel=2)
-        store.write(block, rows, src if symmetrize else None)
-        done += 1
+    with open_rows(out, (src.size, n), chunk, dtype, fingerprint) as store:
+        todo = store.todo()
+        blocks = {b: src[b * chunk:(b + 1) * chunk] for b in todo}
+        if client is not None:
+            solved = distributed.solve_blocks(client, mesh, problem, blocks)
+        else:
+            solved = _solve_blocks_here(DistanceSolver(mesh, workers=workers, **problem), blocks) if blocks else iter(())
+        t0 = time.perf_counter()
+        done = store.blocks - len(todo)
         if progress is not None:
-            progress(done, store.blocks, time.perf_counter() - t0)
-    if symmetrize:
-        store.symmetrize(src)
-    return store.result()
+            progress(done, store.blocks, 0.0)
+        for block, rows, messages in solved:
+            for message in messages:
+                warnings.warn(message, ConvergenceWarning, stacklevel=2)
+            store.write(block, rows, src if symmetrize else None)
+            done += 1
+            if progress is not None:
+                progress(done, store.blocks, time.perf_counter() - t0)
+        if symmetrize:
+            store.symmetrize(src)
+        return store.result()
 
 
 def solve_rows(solver, sources):
