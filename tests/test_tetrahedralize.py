@@ -21,6 +21,7 @@ import trimesh
 import closed_forms
 import warp_regdist as wrd
 from warp_regdist.cli import main
+from warp_regdist.tetrahedralize import interior_edge
 from warp_regdist.volume_grid import sample_on_grid
 
 pytest.importorskip("tetgen", reason="the optional 'tetgen' package (pip install 'warp-regdist[volume]')")
@@ -62,6 +63,45 @@ def test_ball_depth_matches_closed_form():
     assert res.converged
     exact = closed_forms.ball_distance(np.linalg.norm(mesh.vertices, axis=1), 1.0, solver.alpha)
     assert np.abs(res.distance - exact).max() <= 0.03 * exact.max()
+
+
+def test_default_interior_resolves_alpha():
+    """A unit ball from a 2,562-vertex icosphere at alpha_hat 0.05 (alpha 0.081): the default
+    interior (edges <= min(mean surface edge 0.075, alpha)) meets the closed form to 3% of the
+    max depth (2.1% measured); TetGen's grading from the surface alone gives 4.6%."""
+    surface = wrd.Mesh(*_sphere(4))
+    errors = {}
+    for max_edge in ("auto", None):
+        mesh = wrd.tetrahedralize(surface, max_edge=max_edge, alpha_hat=0.05)
+        solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)
+        res = solver.solve(wrd.boundary_vertices(mesh))
+        r = np.minimum(np.linalg.norm(mesh.vertices, axis=1), 1.0)
+        exact = closed_forms.ball_distance(r, 1.0, solver.alpha)
+        errors[max_edge] = np.abs(res.distance - exact).max() / exact.max()
+    assert errors["auto"] <= 0.03 < 0.04 < errors[None]
+
+
+def test_interior_edge_is_the_mean_surface_edge_or_alpha():
+    outer, inner = _sphere(3), _sphere(2, radius=0.5, flip=True)
+    V, F = outer
+    P = V[F]
+    mean_edge = np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).mean()
+    volume = abs(_enclosed_volume(wrd.Mesh(*outer)))
+    assert interior_edge(V, F, 1.0) == pytest.approx(mean_edge, rel=1e-12)
+    assert interior_edge(V, F, None) == interior_edge(V, F, 0.0) == pytest.approx(mean_edge, rel=1e-12)
+    assert interior_edge(V, F + 0, 0.01) == pytest.approx(0.01 * volume ** (1 / 3), rel=1e-9)
+    hollow = _join(outer, inner)  # the cavity's volume is not the solid's
+    solid = volume - abs(_enclosed_volume(wrd.Mesh(*inner)))
+    assert interior_edge(hollow.vertices + 3.0, hollow.faces, 0.01) == pytest.approx(0.01 * solid ** (1 / 3), rel=1e-9)
+    coarse = wrd.tetrahedralize(wrd.Mesh(V, F), max_edge=None)
+    assert wrd.tetrahedralize(wrd.Mesh(V, F), max_volume=0.05).n_elements < coarse.n_elements * 3  # replaces auto
+    assert wrd.tetrahedralize(wrd.Mesh(V, F), alpha_hat=0.125).n_elements > coarse.n_elements * 4
+    with pytest.raises(ValueError, match=r"expected max_edge 'auto', a length > 0 or None, got -1"):
+        wrd.tetrahedralize(wrd.Mesh(V, F), max_edge=-1)
+    with pytest.raises(ValueError, match=r"expected max_edge 'auto', a length > 0 or None, got 'fine'"):
+        wrd.tetrahedralize(wrd.Mesh(V, F), max_edge="fine")
+    with pytest.raises(ValueError, match=r"expected a finite alpha_hat >= 0, got -0\.1"):
+        wrd.tetrahedralize(wrd.Mesh(V, F), alpha_hat=-0.1)
 
 
 def test_same_surface_gives_same_tetrahedra_and_keeps_surface_vertices_first():
@@ -197,17 +237,20 @@ def test_grid_refuses_bad_input():
 def test_cli_volume_spot_depth(tmp_path, capsys):
     out, grid_out, png = tmp_path / "depth.vtu", tmp_path / "depth.npz", tmp_path / "cut.png"
     code = main(["volume", SPOT, "--sources", "boundary", "--alpha-hat", "0.2", "--output", str(out),
-                 "--png", str(png), "--grid", "24", "--grid-output", str(grid_out)])
+                 "--png", str(png), "--grid", "24", "--grid-output", str(grid_out), "--max-edge", "0.08"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    assert "TetGen: " in captured.out and "from 4764 boundary vertices" in captured.out
+    found = re.search(r"TetGen: \d+ tetrahedra \(quality 1\.5, max edge 0\.08, .* from (\d+) boundary vertices",
+                      captured.out)
+    assert found, captured.out
     assert re.search(r"depth\.npz \(\d+ x \d+ x 24 grid, origin \[.*\], spacing [\d.]+, NaN outside\)", captured.out)
     read = meshio.read(out)
     mesh = wrd.Mesh(read.points, read.cells_dict["tetra"])
     depth = read.point_data["distance"]
     boundary = wrd.boundary_vertices(mesh)
     interior = np.setdiff1d(np.arange(mesh.n_vertices), boundary)
-    assert boundary.size == 4764 and interior.size > 100
+    assert boundary.size == int(found[1]) >= 4764 and interior.size > 100
+    assert np.array_equal(boundary[:4764], np.arange(4764))  # the surface's vertices first
     assert np.isfinite(depth).all()
     assert np.all(depth[boundary] == 0.0)
     assert depth[interior].min() > 0.0
@@ -244,6 +287,7 @@ def test_cli_volume_point_sources_are_snapped(tmp_path, capsys):
         (["--sources", "missing.csv"], r"expected --sources as an existing \.csv file of 'x,y,z' rows, got '.*missing\.csv' \(no such file\)"),
         (["--sources", "boundary", "--grid", "16"], r"expected --grid N and --grid-output FILE together, got only --grid"),
         (["--sources", "boundary", "--max-volume", "-1"], r"expected max_volume > 0 \(or None\), got -1\.0"),
+        (["--sources", "boundary", "--max-edge", "0"], r"expected --max-edge as a length > 0, got 0\.0"),
     ],
 )
 def test_cli_volume_bad_input(tmp_path, capsys, extra, message):

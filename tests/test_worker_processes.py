@@ -22,7 +22,7 @@ import pytest
 import meshes
 import warp_regdist as wrd
 import warp_regdist.solver as solver_module
-from warp_regdist.processes import WorkerError, processes_available
+from warp_regdist.processes import processes_available
 
 pytestmark = pytest.mark.skipif(not processes_available(), reason="worker processes need Linux")
 
@@ -108,7 +108,16 @@ def _wait_for_ready(stream):
 
 
 def _worker_pids(pid):
-    return [c for c in _children(pid) if b"_serve" in open(f"/proc/{c}/cmdline", "rb").read()]
+    """Pids of the live WorkerPool workers whose parent is ``pid``."""
+    found = []
+    for child in _children(pid):
+        try:
+            with open(f"/proc/{child}/cmdline", "rb") as f:
+                if b"_serve" in f.read():
+                    found.append(child)
+        except OSError:  # ended meanwhile
+            pass
+    return set(found)
 
 
 @pytest.mark.parametrize("kind, sig", [("all_pairs", signal.SIGKILL), ("solve_many", signal.SIGKILL),
@@ -144,6 +153,7 @@ def test_a_dead_worker_is_reported_at_the_next_check(monkeypatch):
     sets = [[i] for i in range(16)]
     run_iterations = solver_module.run_iterations
     advances = []
+    others = _worker_pids(os.getpid())  # workers of pools that other tests left to the garbage collector
 
     def kill_the_worker_at_three(problem, start, max_iterations, check_every=1):
         advance = problem.advance
@@ -152,7 +162,7 @@ def test_a_dead_worker_is_reported_at_the_next_check(monkeypatch):
             advance(it, count)
             advances.append(it)
             if len(advances) == 3:
-                (worker,) = _worker_pids(os.getpid())
+                (worker,) = _worker_pids(os.getpid()) - others
                 os.kill(worker, signal.SIGKILL)
                 os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)  # dead before the next check
 
@@ -162,7 +172,7 @@ def test_a_dead_worker_is_reported_at_the_next_check(monkeypatch):
     monkeypatch.setattr(solver_module, "run_iterations", kill_the_worker_at_three)
     with warnings.catch_warnings(), wrd.tolerances.override(eps_rel=1e-12, eps_rel_dual=1e-12):
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        with pytest.raises(WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGKILL \(the "
+        with pytest.raises(wrd.WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGKILL \(the "
                                               r"out-of-memory killer sends it, as does kill -9\)"):
             solver.solve_many(sets)
     assert len(advances) == 3  # raised at the check right after the death, not at the end of the solve
@@ -179,14 +189,15 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
         whole = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2)
+        others = _worker_pids(os.getpid())
 
         def kill_at_eight(it, *_):
             if it == 8:
-                for worker in _worker_pids(os.getpid()):
+                for worker in _worker_pids(os.getpid()) - others:
                     os.kill(worker, signal.SIGTERM)
                     os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)
 
-        with pytest.raises(WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGTERM; its part of the "
+        with pytest.raises(wrd.WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGTERM; its part of the "
                                               r"work is lost \(an all-pairs run resumes from its last checkpoint\)"):
             wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, checkpoint=path,
                           checkpoint_seconds=1e-9, progress=kill_at_eight)

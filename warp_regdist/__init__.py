@@ -12,6 +12,7 @@ from .line_field import line_field
 from .mesh import Mesh, MeshError, boundary_vertices
 from .mesh_io import load_mesh
 from .operators import Operators, build_operators
+from .processes import WorkerError
 from .regularizers import REGULARIZERS
 from .solver import ConvergenceWarning, DistanceResult, DistanceSolver
 from .source_rows import distance_matrix
@@ -23,4 +24,4 @@ __version__ = "0.1.0"
 __all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "__version__"]
+           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "__version__"]

@@ -567,8 +567,12 @@ def _add_volume_parser(sub, solver_options) -> None:
     volume.add_argument("--grid-output", metavar="FILE",
                         help="the grid samples: .npy (nx, ny, nz) array, or .npz with 'values', 'origin' and "
                         "'spacing' (point (i, j, k) at origin + spacing (i, j, k)); NaN outside the solid")
+    volume.add_argument("--max-edge", type=float, metavar="L",
+                        help="longest interior edge in the surface's units (default without --max-volume: the "
+                        "smaller of the surface's mean edge and alpha = A volume^(1/3), so the interior resolves "
+                        "the distance's smooth cap)")
     volume.add_argument("--max-volume", type=float, metavar="V",
-                        help="largest tetrahedron volume in the surface's units cubed (default: no bound)")
+                        help="largest tetrahedron volume in the surface's units cubed (replaces the default --max-edge)")
     volume.add_argument("--quality", type=float, default=1.5, metavar="Q",
                         help="largest radius-edge ratio of a tetrahedron, > 1 (default: 1.5)")
     solver_options(volume)
@@ -608,6 +612,8 @@ def _volume(args: argparse.Namespace) -> None:
         _check_output(args.grid_output, (".npy", ".npz"), "--grid-output")
         if args.grid < 2:
             raise ValueError(f"expected --grid N >= 2, got {args.grid}")
+    if args.max_edge is not None and not (np.isfinite(args.max_edge) and args.max_edge > 0):
+        raise ValueError(f"expected --max-edge as a length > 0, got {args.max_edge}")
     points = None if args.sources.strip().lower() == "boundary" else _read_points(args.sources)
     surface = _load(args.surface)
     name = os.path.basename(args.surface)
@@ -615,11 +621,18 @@ def _volume(args: argparse.Namespace) -> None:
     say(f"{name}: tetrahedralizing {surface.n_vertices} vertices, {surface.n_elements} faces with TetGen...")
     start = time.perf_counter()
     try:
-        mesh = tetrahedralize(surface, max_volume=args.max_volume, quality=args.quality)
+        max_edge = "auto" if args.max_edge is None else args.max_edge
+        mesh = tetrahedralize(surface, max_volume=args.max_volume, quality=args.quality, max_edge=max_edge,
+                              alpha_hat=args.alpha_hat)
     except ModuleNotFoundError as exc:
         raise ValueError(str(exc)) from None
-    meshed = (f"TetGen: {mesh.n_elements} tetrahedra (quality {args.quality:g}"
-              f"{'' if args.max_volume is None else f', max volume {args.max_volume:g}'}, "
+    if args.max_edge is None and args.max_volume is None:
+        from .tetrahedralize import interior_edge
+
+        max_edge = interior_edge(surface.vertices, surface.faces, args.alpha_hat)
+    bounds = "" if max_edge == "auto" else f", max edge {max_edge:.3g}"
+    bounds += "" if args.max_volume is None else f", max volume {args.max_volume:g}"
+    meshed = (f"TetGen: {mesh.n_elements} tetrahedra (quality {args.quality:g}{bounds}, "
               f"{mesh.components().max() + 1} connected component(s)) in {time.perf_counter() - start:.2f} s")
     say(meshed)
     if points is None:

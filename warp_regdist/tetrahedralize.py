@@ -14,17 +14,24 @@ import os
 
 import numpy as np
 
+from .arguments import check_weight
 from .mesh import Mesh, MeshError
 from .mesh_io import load_mesh
 
-__all__ = ["tetrahedralize"]
+__all__ = ["tetrahedralize", "interior_edge"]
 
 _TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")  # what TetGen writes into the working directory when it fails
 _PAIR_CHUNK = 2_000_000  # candidate (face, cell) entries handled at once in the self-intersection test
 
 
-def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
+def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0, max_edge="auto", alpha_hat=0.05):
     """Fill a closed triangle surface with tetrahedra (constrained Delaunay + quality refinement, TetGen ``-pq``).
+
+    The interior is as fine as the surface and the distance it will carry need: by default no
+    tetrahedron is larger than the regular one of edge ``min(mean surface edge, alpha)``,
+    alpha = alpha_hat V^(1/3) the regularization length of the solve (V the enclosed volume;
+    the smooth cap of the distance has radius ~3 alpha and needs edges of that order).
+    Without that bound TetGen's grading from the surface alone leaves the interior coarse.
 
     Parameters
     ----------
@@ -35,14 +42,23 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
         empty), a shell inside that cavity a solid again, and so on.
     max_volume : float, optional
         Target largest tetrahedron volume (mesh units cubed, TetGen ``-a``; TetGen may
-        leave a few tetrahedra above it on coarse meshes); default: none, the tetrahedra
-        are then only as small as the surface's triangles and ``quality`` require.
+        leave a few tetrahedra above it on coarse meshes). It replaces ``max_edge="auto"``;
+        with a numeric ``max_edge`` the smaller of the two bounds applies.
     quality : float or None
         Largest radius-edge ratio (circumradius / shortest edge) of a tetrahedron, > 1
         (TetGen ``-q``; the regular tetrahedron has 0.61). None: no quality refinement,
         only the constrained Delaunay tetrahedralization of the surface's vertices.
     min_dihedral : float
         Smallest dihedral angle in degrees, in [0, 18] (used with ``quality``).
+    max_edge : "auto", float or None
+        Target longest interior edge (mesh units): tetrahedra are bounded by the volume
+        L^3 / (6 sqrt 2) of the regular tetrahedron of edge L. "auto": L = min(mean surface
+        edge, alpha_hat V^(1/3)) unless ``max_volume`` is given; None: no bound (TetGen's
+        grading from the surface alone). Bounding the volume lets TetGen split surface
+        triangles too (the surface's vertices still come first).
+    alpha_hat : float or None
+        The regularization weight the mesh is for (used by ``max_edge="auto"``; None or 0:
+        the mean surface edge alone).
 
     Returns
     -------
@@ -74,6 +90,11 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
         raise ValueError(f"expected quality (largest radius-edge ratio) > 1 (or None), got {quality!r}")
     if not (_is_real(min_dihedral) and 0.0 <= min_dihedral <= 18.0):
         raise ValueError(f"expected min_dihedral in [0, 18] degrees, got {min_dihedral!r}")
+    if not (max_edge is None or (isinstance(max_edge, str) and max_edge == "auto")
+            or (_is_real(max_edge) and np.isfinite(max_edge) and max_edge > 0)):
+        raise ValueError(f"expected max_edge 'auto', a length > 0 or None, got {max_edge!r}")
+    if alpha_hat is not None:
+        alpha_hat = check_weight(alpha_hat, "alpha_hat")
     try:
         import tetgen
     except ImportError:
@@ -87,7 +108,13 @@ def tetrahedralize(surface, max_volume=None, quality=1.5, min_dihedral=10.0):
     F = np.searchsorted(used, welded)
     _check_closed(F, used)
     _check_no_self_intersection(V, F)
-    cavities = _cavity_points(V, F)
+    shells, depth = _shell_depths(V, F)
+    cavities = _cavity_points(V, F, shells, depth)
+    if isinstance(max_edge, str):
+        max_edge = interior_edge(V, F, alpha_hat, shells, depth) if max_volume is None else None
+    if max_edge is not None:
+        by_edge = float(max_edge) ** 3 / (6.0 * np.sqrt(2.0))
+        max_volume = by_edge if max_volume is None else min(float(max_volume), by_edge)
 
     options = {"quality": quality is not None, "quiet": True, "nowarning": True}
     if quality is not None:
@@ -141,9 +168,48 @@ def _face_components(F):
     return labels[F[:, 0]]
 
 
-def _cavity_points(V, F):
-    """(c, 3) one point inside every cavity: the region enclosed by a shell that lies inside an
-    odd number of other shells (generalized winding numbers), outside the shells within it.
+def interior_edge(V, F, alpha_hat, shells=None, depth=None):
+    """The default longest interior edge: min(mean edge of the surface (V, F), alpha_hat vol^(1/3)),
+    vol the volume the closed surface encloses (cavities excluded); the mean edge alone when
+    alpha_hat is None or 0."""
+    P = V[F]
+    mean_edge = float(np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).mean())
+    if not alpha_hat:
+        return mean_edge
+    if shells is None:
+        shells, depth = _shell_depths(V, F)
+    return min(mean_edge, float(alpha_hat) * _enclosed_volume(V, F, shells, depth) ** (1.0 / 3.0))
+
+
+def _shell_depths(V, F):
+    """(m,) shell label of every face and (shells,) depth of every shell: the number of other
+    shells it lies inside (generalized winding numbers); odd depth: the shell bounds a cavity."""
+    import igl
+
+    shells = _face_components(F)
+    count = shells.max() + 1
+    if count == 1:
+        return shells, np.zeros(1, np.int64)
+    probes = V[F[np.unique(shells, return_index=True)[1], 0]]  # one vertex of every shell
+    contains = np.zeros((count, count), bool)  # contains[s, t]: shell t inside shell s
+    for s in range(count):
+        contains[s] = np.abs(igl.winding_number(V, F[shells == s], probes)) > 0.5
+        contains[s, s] = False
+    return shells, contains.sum(axis=0)
+
+
+def _enclosed_volume(V, F, shells, depth):
+    """Volume of the solid: each shell's enclosed volume (divergence theorem, either orientation),
+    added at even depth and removed at odd depth (cavities)."""
+    P = V[F] - V.mean(axis=0)
+    signed = np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])) / 6.0
+    per_shell = np.abs(np.bincount(shells, weights=signed, minlength=len(depth)))
+    return float(np.sum(np.where(depth % 2 == 0, per_shell, -per_shell)))
+
+
+def _cavity_points(V, F, shells, depth):
+    """(c, 3) one point inside every cavity: the region enclosed by a shell of odd depth
+    (:func:`_shell_depths`), outside the shells within it.
 
     The point is a face centroid of the cavity's shell moved by a hundredth of the face's
     shortest edge to the shell's inner side; TetGen removes the tetrahedra of the region
@@ -151,17 +217,8 @@ def _cavity_points(V, F):
     """
     import igl
 
-    shells = _face_components(F)
-    count = shells.max() + 1
-    if count == 1:
-        return np.zeros((0, 3))
-    probes = V[F[np.unique(shells, return_index=True)[1], 0]]  # one vertex of every shell
-    contains = np.zeros((count, count), bool)  # contains[s, t]: shell t inside shell s
-    for s in range(count):
-        contains[s] = np.abs(igl.winding_number(V, F[shells == s], probes)) > 0.5
-        contains[s, s] = False
     points = []
-    for s in np.flatnonzero(contains.sum(axis=0) % 2 == 1):
+    for s in np.flatnonzero(depth % 2 == 1):
         faces = F[shells == s]
         P = V[faces]
         lengths = np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).min(axis=1)
