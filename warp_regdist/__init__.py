@@ -10,7 +10,7 @@ from .all_pairs_admm import AllPairsResult, all_pairs
 from .export import save_vtu
 from .line_field import line_field
 from .mesh import Mesh, MeshError, boundary_vertices
-from .mesh_io import load_mesh
+from .mesh_io import data_path, load_mesh
 from .operators import Operators, build_operators
 from .processes import WorkerError
 from .regularizers import REGULARIZERS
@@ -21,7 +21,7 @@ from .tolerances import Tolerances, tolerances
 
 __version__ = "0.1.0"
 
-__all__ = ["Mesh", "MeshError", "load_mesh", "boundary_vertices", "Operators", "build_operators",
+__all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "__version__"]

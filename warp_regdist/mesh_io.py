@@ -14,10 +14,20 @@ import numpy as np
 
 from .mesh import Mesh, MeshError
 
-__all__ = ["load_mesh"]
+__all__ = ["load_mesh", "data_path"]
 
 _VOLUME_FORMATS = {".msh": ("gmsh", "ansys"), ".vtk": ("vtk",), ".vtu": ("vtu",), ".mesh": ("medit",)}  # meshio
 _SURFACE_FORMATS = (".off", ".ply", ".stl")  # read by trimesh (OBJ by _read_obj)
+
+
+def data_path(name):
+    """Path (str) of a mesh shipped with the package, e.g. ``data_path("spot_rr.off")`` (spot, 4,764
+    vertices, the demo's mesh); ValueError naming the shipped files for another name."""
+    folder = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
+    shipped = sorted(f for f in os.listdir(folder) if not f.startswith("."))
+    if name not in shipped:
+        raise ValueError(f"expected one of the shipped files {shipped}, got {name!r}")
+    return os.path.join(folder, name)
 
 
 def load_mesh(path):
