@@ -18,10 +18,11 @@ from .solver import ConvergenceWarning, DistanceResult, DistanceSolver
 from .source_rows import distance_matrix
 from .tetrahedralize import tetrahedralize
 from .tolerances import Tolerances, tolerances
+from .viewer import show
 
 __version__ = "0.1.0"
 
 __all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "__version__"]
+           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "show", "__version__"]

@@ -3,7 +3,7 @@
 Subcommands: ``demo`` (the spot cow shipped with the package), ``distance`` (any
 mesh file), ``allpairs`` (the symmetric all-pairs distance matrix) and ``matrix``
 (single-source rows written block by block, resumable, optionally on a Dask cluster); ``volume`` (a closed surface
-tetrahedralized, then the distance inside it).  Bad input (missing or malformed files, bad sources, an unknown device, an
+tetrahedralized, then the distance inside it); ``view`` (values on a mesh in a polyscope window).  Bad input (missing or malformed files, bad sources, an unknown device, an
 unsupported output extension) ends with one line ``warp-regdist: error: ...`` on stderr
 and exit status 2; other exceptions are bugs and propagate with their traceback.
 """
@@ -186,7 +186,45 @@ def _parser() -> argparse.ArgumentParser:
     solver_options(allpairs)
     _add_matrix_parser(sub, solver_options)
     _add_volume_parser(sub, solver_options)
+    _add_view_parser(sub)
     return parser
+
+
+def _add_view_parser(sub) -> None:
+    view = sub.add_parser(
+        "view",
+        help="show per-vertex values on a mesh in an interactive window (polyscope)",
+        description="Show a .npy of per-vertex values ((n,) or (n, k): k fields side by side) on a mesh\n"
+        "in a polyscope window, as a colour map with isolines, sources marked, a slice plane\n"
+        "for tetrahedra. Needs pip install 'warp-regdist[view]'.",
+        epilog=_EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    view.add_argument("mesh", metavar="MESH", help="the mesh the values belong to")
+    view.add_argument("values", metavar="VALUES", help=".npy file of per-vertex values, (n,) or (n, k)")
+    view.add_argument("--isolines", type=int, default=20, metavar="N", help="isolines per field (default: 20)")
+    view.add_argument("--sources", metavar="SOURCES", help="vertices to mark: comma-separated indices")
+    view.add_argument("--backend", metavar="NAME", help="polyscope backend (openGL_mock: headless, draws nothing)")
+    view.add_argument("--frames", type=int, metavar="N", help="render N frames and exit instead of waiting")
+
+
+def _view(args: argparse.Namespace) -> None:
+    from .viewer import show
+
+    mesh = _load(args.mesh)
+    if not args.values.lower().endswith(".npy") or not os.path.isfile(args.values):
+        raise ValueError(f"expected VALUES as an existing .npy file, got {args.values!r}")
+    try:
+        values = np.load(args.values, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"expected VALUES as a readable .npy array, got {args.values!r} ({exc})") from None
+    sources = None
+    if args.sources:
+        sources, _ = _parse_sources(args.sources, mesh)
+    try:
+        show(mesh, values, isolines=args.isolines, sources=sources, backend=args.backend, frames=args.frames)
+    except ModuleNotFoundError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def _check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
@@ -708,7 +746,8 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
     try:
-        {"demo": _demo, "distance": _distance, "allpairs": _allpairs, "matrix": _matrix, "volume": _volume}[args.command](args)
+        {"demo": _demo, "distance": _distance, "allpairs": _allpairs, "matrix": _matrix, "volume": _volume,
+         "view": _view}[args.command](args)
     except (ValueError, OSError) as exc:  # MeshError is a ValueError
         message = " ".join(str(exc).split())
         print(f"{PROG}: error: {message}", file=sys.stderr)
