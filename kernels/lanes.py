@@ -45,8 +45,7 @@ def thread_span(device, blocks=1, row_blocks=None):
     128 rows of one block per thread (one atomic per chunk) for short rows; for long rows
     (>= ``ALL_BLOCKS`` blocks: the all-pairs state, 122 on cat) the consecutive rows of one
     block lie row_blocks x 64 bytes apart, so one thread takes one row of every active block,
-    a contiguous run of memory (cat, float32, one core: the PCG's matrix product 10 ms with
-    one row of one block per thread, 29 ms with 128 rows, 5.6 ms with one row of all blocks).
+    a contiguous run of memory.
     The sums over rows are added in another order in the two layouts, so the choice depends
     on the arrays' layout alone, not on how many of their blocks a launch covers.
     """

@@ -27,17 +27,16 @@ pairs of W x W tiles. Z and Y are stored together as one (3m, n) array (kernels/
 The seven residuals of docs/method.md section 5 are computed (r2 = r1, s2 = s1, rx2 = rx1 by the
 symmetry) and reported.
 
-Penalties and stopping test (defaults tuned against exact minimizers, see the README):
+Penalties and stopping test (defaults chosen against exact minimizers, docs/guides/all-pairs.md):
 rho_k = sqrt(A) min(rho_max, rho0 2^(k / rho_doubling)) (``tolerances.pairs_rho0``,
 ``pairs_rho_max``, ``pairs_rho_doubling``), rho2_k = rho2_factor rho_k^2 / (sqrt(A) A) (the
-consensus penalty grows 16x faster; a fixed ratio rho2 / rho converged 1.5-3x slower),
+consensus penalty grows faster than rho),
 over-relaxation ``tolerances.relaxation`` in all three steps; stop when every residual is
 below its relative tolerance and the change test of the last window of
 ``tolerances.pairs_change_window`` iterations held: with c_k = max |U_k - U_(k - window)| / max U_k,
 the change still to come if U keeps converging at the rate of the last two windows,
-c_k / (1 - c_k / c_(k - window)), is at most eps_change (the residuals alone stopped 1-3%
-away from the exact minimizer on decimated meshes, the change of one window alone
-underestimated the error 7x at alpha_hat 0.3). K2 changes with the penalties:
+c_k / (1 - c_k / c_(k - window)), is at most eps_change (neither the residuals alone nor
+the change of one window bound the distance to the exact minimizer). K2 changes with the penalties:
 ``BatchedPCG.set_matrix`` replaces its
 values (same pattern as W_D), the multigrid preconditioner is built once.
 """
@@ -98,7 +97,7 @@ class AllPairsResult(OptimizeResult):
         The change of U still to come estimated at the last change test, in units of max U
         (inf before the third test, or while the change grows; see ``eps_change``).
     cg_iterations : int
-        PCG iterations summed over ADMM iterations (the largest count among the worker threads).
+        PCG iterations summed over ADMM iterations (the largest count among the worker processes).
     seconds : float
     memory_bytes : int
         Estimated footprint of the solver's arrays (device and host).
@@ -395,9 +394,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         Change test, every ``tolerances.pairs_change_window`` (w) iterations: with
         c_k = max |U_k - U_(k - w)| / max U_k, stop only once c_k / (1 - c_k / c_(k - w)) (the
         rest of a geometric series at the last two windows' rate) is <= eps_change (math.inf:
-        no change test, the residual test alone). With the
-        defaults the error at stop stayed within 0.5% of the maximal distance from the exact
-        minimizer on the irregular meshes we measured (README).
+        no change test, the residual test alone).
     schedule : PenaltySchedule or None
         The gradient penalty rho at iteration k = 0, 1, ...: a :class:`~warp_regdist.PenaltySchedule`
         or any object with ``rho(k)`` (absolute) and ``offset_for(penalty)``; rho2 follows from

@@ -50,15 +50,12 @@ class Regularizer:
         W_D on the same pattern as ``weights`` (None for "dirichlet").
     tolerance_factor : float
         Factor on the ADMM stopping tolerances and on the u-step's CG tolerance
-        (``tolerances.cg_fraction``): 1, or 1/20 for the Hessian. Without the CG factor the
-        inexact u-steps kept the Hessian's primal residual above its tolerance (3,000
-        iterations without converging on a flat square).
+        (``tolerances.cg_fraction``): 1, or 1/20 for the Hessian, whose inexact u-steps
+        otherwise keep the primal residual above its tolerance.
     rho_factors : (float, float)
         Factors on ``tolerances.rho0`` and ``tolerances.rho_max``: (1, 1), or (1, 8) for the
-        Hessian (penalty up to 64 sqrt(A)): measured on spot (alpha_hat 1e-4, 1e-3, 0.05)
-        and on flat squares with and without a hole, 243-573 iterations where the default
-        schedule needed 668-1307 or more than 2,000; (8, 32) was faster at alpha_hat >= 1e-3
-        but did not converge at 1e-4, and residual balancing stopped up to 0.7% away.
+        Hessian (penalty up to 64 sqrt(A)), whose fourth-order term needs larger penalties
+        to converge in a few hundred iterations.
     """
 
     name: str

@@ -26,17 +26,8 @@ class Tolerances:
         Change test: every change_window iterations, u_k is compared with the u of
         change_window iterations before; a column stops once its residual test holds and
         the last comparison gave max |u_k - u_(k - change_window)| <= eps_change max |u_k|
-        (math.inf: no change test).
-        The residuals alone do not tell when the error is small: the previous rule (eps_rel
-        2.5e-4, eps_rel_dual 0.15, no change test, penalty doubling every 30 iterations up
-        to 8) stopped spot at iteration 179, within 0.5% of the exact minimizer from
-        iteration 97; with the faster schedule below its residual test stopped decimated
-        meshes up to 2% away. With these
-        defaults and the penalty schedule below: spot, bent pipe and cat stop after 90, 87
-        and 90 iterations (previously 179, 219, 167), 0.21-0.39% from Clarabel's exact
-        minimizer; 25 of 26 cases on decimated, bumpy and obtuse meshes of 136-162 vertices
-        (alpha_hat 0-0.3, one and two sources, the boundary) within 0.48%, the decimated spot
-        with holes at alpha_hat 0 at 1.13% (README, benchmarks/stopping.py).
+        (math.inf: no change test). The residuals alone do not tell when the error is
+        small; the change test bounds it (docs/architecture.md, benchmarks/stopping.py).
     max_iterations : int
         ADMM iteration cap.
     relaxation : float
@@ -45,51 +36,38 @@ class Tolerances:
         Penalty schedule, in units of the length scale L = sqrt(A):
         rho_k = L min(rho_max, rho0 2^((k - 1) / rho_doubling)) at iteration k = 1, 2, ...
         A changing penalty costs nothing here (the Dirichlet u-step matrix (alpha + rho) W_D
-        is only rescaled), and this fixed schedule converged faster and more reliably
-        than residual balancing. Doubling every 10 iterations up to 4 reaches 0.5% of the
-        exact minimizer after 45-78 iterations on spot, the bent pipe and cat, where
-        doubling every 30 iterations up to 8 needed 77-114; growing faster or further
-        slowed the 150-vertex meshes at small alpha_hat.
+        is only rescaled), and a fixed schedule converges more reliably than residual
+        balancing.
     cg_fraction, cg_rtol : float
         Each u-step is solved inexactly by warm-started PCG, until its residual is below
         min(cg_fraction |D y|, eps_dual / 10) (|D y| is the scale of the dual residual s),
-        or below cg_rtol times the right-hand side. 1e-3 keeps the iterates as with exact solves; looser
-        (1e-1) saves 40% of the CG work but stalls on small meshes at tight primal tolerances;
-        1e-2 saved 21-24% of the CG iterations on spot and a 100k-vertex sphere (same ADMM
-        iterations and error) but a 6^3-grid tet box at alpha_hat 0 then never stopped (10,000
-        iterations).
+        or below cg_rtol times the right-hand side. 1e-3 keeps the iterates as with exact
+        solves; looser fractions save CG work but can stall the ADMM on small meshes.
     cg_primal_fraction : float
         The u-step's residual is also kept below cg_primal_fraction times the last primal
         residual r (times L^(d/2 - 1), in the units of (alpha + rho) W_D u, so that the rule
-        is scale-invariant on tetrahedra too). Without it, a warm start
-        that already meets the fixed tolerance leaves u unchanged and r can stall above
-        its tolerance: 3 of 8 sources on a 42-vertex sphere with tolerances 10x tighter
-        than the defaults, a 12 x 12 grid at alpha_hat 1 (10,000 iterations; 64 with it).
-        At the previous defaults it changed little elsewhere (spot: 1,034 CG iterations instead of
-        1,050, the same 179 ADMM iterations; Hessian +12% CG iterations).
+        is scale-invariant on tetrahedra too): a warm start that already meets the fixed
+        tolerance would otherwise leave u unchanged and r stalled above its tolerance.
     cg_max_iterations : int
         PCG iteration cap per ADMM iteration.
     pairs_eps_rel, pairs_eps_rel_consensus, pairs_eps_rel_dual, pairs_rho2_factor, pairs_cg_fraction : float
         Defaults of the same-named arguments of :func:`warp_regdist.all_pairs` (its residual
         test, consensus penalty and CG tolerance).
     pairs_rho0, pairs_rho_max, pairs_rho_doubling : float
-        The all-pairs penalty schedule (as rho0, rho_max, rho_doubling); the single-source
-        schedule slowed it (1,800 iterations instead of 785 to 1% on a decimated cat).
+        The all-pairs penalty schedule (as rho0, rho_max, rho_doubling).
     pairs_eps_change, pairs_change_window : float, int
         Change test of :func:`warp_regdist.all_pairs`, every pairs_change_window iterations:
         with c = max |U_k - U_(k - window)| / max U_k, it holds once c / (1 - c / c_before),
         the change still to come at the rate of the last two windows, is <= pairs_eps_change
-        (math.inf: no change test). The residual test alone stopped 0.8-3.1% away from the
-        exact minimizer on decimated meshes of 59-162 vertices; with the change test
-        0.12-0.43% (README).
+        (math.inf: no change test).
     degenerate_element : float
         An element whose area (volume) is <= this times its longest edge squared (cubed)
         is refused as degenerate.
     max_gradient : float
         A result whose gradient exceeds this on some element is reported as not converged,
-        with a warning (the constraint is |G u| <= 1; converged results stayed below 1.01
-        on spot, the bent pipe, cat and a tet cube). Caught: iterations that blew up on
-        needle-like elements while their relative stopping test held.
+        with a warning (the constraint is |G u| <= 1, which converged results meet to about
+        1%). It catches iterations that blew up on needle-like elements while their
+        relative stopping test held.
     """
 
     eps_abs: float = 0.0
