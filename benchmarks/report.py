@@ -130,6 +130,8 @@ def render_table(name, columns, where=None, data=DATA):
     with open(_stamp_path(path)) as f:
         st = json.load(f)
     pairs = [c.split("=", 1) for c in (c.strip() for c in columns.split(",")) if c]
+    if any(len(p) != 2 for p in pairs):
+        raise ValueError(f"expected columns of table {name} as key=Header pairs, got {columns!r}")
     if where:
         key, values = where.split("=", 1)
         keep = [v.strip() for v in values.split(",")]
