@@ -60,10 +60,10 @@ def load_mesh(path):
 
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
-    except ImportError:  # trimesh tries optional text decoders on binary garbage
-        raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file") from None
-    except Exception as exc:  # trimesh raises many types for malformed files
-        raise MeshError(f"could not read mesh file {path!r}: {exc}") from None
+    except Exception as exc:  # trimesh raises many types for malformed files (ImportError when it
+        # looks for an optional text decoder for binary garbage, which some environments have)
+        detail = "" if isinstance(exc, ImportError) or not str(exc) else f" ({exc})"
+        raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file{detail}") from None
     V = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
     F = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))))
     if F.size == 0:
