@@ -201,7 +201,7 @@ def test_refuses_another_problem_and_bad_input(mesh, tmp_path, client):
     with pytest.raises(ValueError, match=r"same problem \(sources_sha256 '[0-9a-f]+'\)"):
         wrd.distance_matrix(mesh, 0.05, sources=SOURCES[::-1], chunk=CHUNK, out=out, symmetrize=False)
     with open(os.path.join(out + ".progress", "fingerprint.json")) as f:
-        assert json.load(f)["mesh_sha256"] == wrd.source_rows.mesh_sha256(mesh)
+        assert json.load(f)["mesh_sha256"] == mesh.sha256()
     foreign = tmp_path / "other.npy"
     np.save(foreign, np.zeros((10, 162)))
     with pytest.raises(ValueError, match=r"expected out as a new path or one written by distance_matrix, got an "

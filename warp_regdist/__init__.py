@@ -9,12 +9,12 @@ from .admm import PenaltySchedule
 from .all_pairs_admm import AllPairsResult, all_pairs
 from .export import save_vtu
 from .line_field import line_field
-from .mesh import Mesh, MeshError, boundary_vertices
+from .errors import ConvergenceWarning, MeshError, WorkerError
+from .mesh import Mesh, boundary_vertices
 from .mesh_io import data_path, load_mesh
 from .operators import Operators, build_operators
-from .processes import WorkerError
 from .regularizers import REGULARIZERS
-from .solver import ConvergenceWarning, DistanceResult, DistanceSolver
+from .solver import DistanceResult, DistanceSolver
 from .source_rows import distance_matrix
 from .tetrahedralize import tetrahedralize
 from .tolerances import Tolerances, tolerances

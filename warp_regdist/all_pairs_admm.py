@@ -44,7 +44,6 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import math
 import os
@@ -69,7 +68,7 @@ from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, ExtrapolatedChangeTest, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .file_lock import FileLock
-from .solver import ConvergenceWarning
+from .errors import ConvergenceWarning
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -545,10 +544,7 @@ def _check_checkpoint_room(path, size):
 
 def _fingerprint(mesh, alpha_hat, dtype, rho2_factor):
     """What identifies the problem of a checkpoint (JSON-able dict)."""
-    digest = hashlib.sha256()
-    digest.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
-    digest.update(np.ascontiguousarray(mesh.elements, dtype=np.int64).tobytes())
-    return dict(mesh_sha256=digest.hexdigest(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
+    return dict(mesh_sha256=mesh.sha256(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
                 dtype=dtype, rho2_factor=float(rho2_factor))
 
 

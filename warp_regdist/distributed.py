@@ -18,8 +18,9 @@ import warnings
 import numpy as np
 
 from .matrix_store import average_source_pairs
-from .solver import ConvergenceWarning, DistanceSolver
-from .source_rows import mesh_sha256, solve_rows
+from .errors import ConvergenceWarning
+from .solver import DistanceSolver
+from .source_rows import solve_rows
 
 __all__ = ["check_client", "solve_blocks", "lazy_matrix"]
 
@@ -47,7 +48,7 @@ def _solve_block(mesh, key, problem, sources):
 
 
 def _problem_key(mesh, problem):
-    return (mesh_sha256(mesh), *sorted(problem.items()))
+    return (mesh.sha256(), *sorted(problem.items()))
 
 
 def solve_blocks(client, mesh, problem, blocks):

@@ -7,17 +7,16 @@ an index out of range, a NaN coordinate or a zero-volume element. Files are read
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
+from .errors import MeshError
 from .tolerances import tolerances
 
-__all__ = ["Mesh", "MeshError", "boundary_vertices"]
-
-
-class MeshError(ValueError):
-    """A mesh (file or arrays) that cannot be used, with the reason in the message."""
+__all__ = ["Mesh", "boundary_vertices"]
 
 
 class Mesh:
@@ -83,6 +82,7 @@ class Mesh:
         if self.element_dim == 2:
             self._check_manifold_edges()
         self._components = None
+        self._sha256 = None
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -168,6 +168,17 @@ class Mesh:
             used[T.ravel()] = True
             self._components = _read_only(np.where(used, labels, -1).astype(np.int64))
         return self._components
+
+    def sha256(self):
+        """SHA-256 hex digest of the vertex positions and elements (little-endian float64 and int64
+        bytes, each after its shape): what identifies the mesh in checkpoints and progress records."""
+        if self._sha256 is None:
+            h = hashlib.sha256()
+            for a in (np.ascontiguousarray(self.vertices, dtype="<f8"), np.ascontiguousarray(self.elements, dtype="<i8")):
+                h.update(str(a.shape).encode())
+                h.update(a.tobytes())
+            self._sha256 = h.hexdigest()
+        return self._sha256
 
     def __repr__(self):
         kind = "triangles" if self.element_dim == 2 else "tetrahedra"

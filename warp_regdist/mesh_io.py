@@ -12,7 +12,8 @@ import warnings
 
 import numpy as np
 
-from .mesh import Mesh, MeshError
+from .errors import MeshError
+from .mesh import Mesh
 
 __all__ = ["load_mesh", "data_path"]
 

@@ -42,16 +42,13 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from . import interrupt
+from .errors import WorkerError
 
-__all__ = ["WorkerPool", "SharedArrays", "processes_available", "WorkerError", "watch", "check_workers"]
+__all__ = ["WorkerPool", "SharedArrays", "processes_available", "watch", "check_workers"]
 
 _ALIGN = 64
 _WATCHED = []  # the pools whose workers run calls that the current loop of this process waits for
 _PARENT_POLL = 0.2  # seconds between a worker's checks that its parent is alive
-
-
-class WorkerError(RuntimeError):
-    """A worker process raised (the message holds its traceback) or died."""
 
 
 def processes_available():

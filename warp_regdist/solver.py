@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 import warp as wp
-from scipy.optimize import OptimizeResult, OptimizeWarning
+from scipy.optimize import OptimizeResult
 
 from .kernels.admm import (CG_TOTAL, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
                            R_LAST, R_OUT, RHO_LAST, RHO_OUT, S_LAST, S_OUT, admm_kernels)
@@ -40,14 +40,11 @@ from .pcg import BatchedPCG
 from .processes import WorkerPool, processes_available, watch
 from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
+from .errors import ConvergenceWarning
 from .regularizers import build_regularizer
 from .tolerances import tolerances
 
-__all__ = ["DistanceSolver", "DistanceResult", "ConvergenceWarning"]
-
-
-class ConvergenceWarning(OptimizeWarning):
-    """The ADMM stopped at ``tolerances.max_iterations`` before meeting its stopping test."""
+__all__ = ["DistanceSolver", "DistanceResult"]
 
 
 class DistanceResult(OptimizeResult):

@@ -23,9 +23,10 @@ from .arguments import check_weight, parse_workers
 from .kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from .mesh import Mesh
-from .solver import ConvergenceWarning, DistanceSolver
+from .errors import ConvergenceWarning
+from .solver import DistanceSolver
 
-__all__ = ["distance_matrix", "solve_rows", "mesh_sha256"]
+__all__ = ["distance_matrix", "solve_rows"]
 
 
 def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
@@ -102,7 +103,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
             if progress is not None:
                 raise ValueError(f"expected progress=None for a lazy dask array (client without out), got {progress!r}")
             return distributed.lazy_matrix(client, mesh, problem, src, chunk, symmetrize)
-    fingerprint = dict(mesh_sha256=mesh_sha256(mesh), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
+    fingerprint = dict(mesh_sha256=mesh.sha256(), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
                        sources_sha256=hashlib.sha256(src.tobytes()).hexdigest(), k=int(src.size), chunk=chunk,
                        symmetrize=bool(symmetrize))
     with open_rows(out, (src.size, n), chunk, dtype, fingerprint) as store:
@@ -143,15 +144,6 @@ def solve_rows(solver, sources):
         if not issubclass(w.category, ConvergenceWarning):
             warnings.warn(w.message, w.category, stacklevel=2)
     return rows, [str(w.message) for w in caught if issubclass(w.category, ConvergenceWarning)]
-
-
-def mesh_sha256(mesh):
-    """SHA-256 of the mesh's vertex positions and elements (float64 and int64 bytes, with shapes)."""
-    h = hashlib.sha256()
-    for a in (np.ascontiguousarray(mesh.vertices, dtype="<f8"), np.ascontiguousarray(mesh.elements, dtype="<i8")):
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
 
 
 def _solve_blocks_here(solver, blocks):

@@ -15,7 +15,8 @@ import os
 import numpy as np
 
 from .arguments import check_weight
-from .mesh import Mesh, MeshError
+from .errors import MeshError
+from .mesh import Mesh
 from .mesh_io import load_mesh
 
 __all__ = ["tetrahedralize", "interior_edge"]
