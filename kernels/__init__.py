@@ -12,5 +12,3 @@ adds its partial sums per block with a single atomic: one row of one block on CU
 CPU 128 rows of one block, or one row of every block when there are many
 (``lanes.thread_span``).
 """
-
-from .lanes import lane_type, thread_span  # noqa: F401

@@ -204,3 +204,24 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
         rest = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, resume=path)
     assert rest.iterations == whole.iterations == 20
     assert np.array_equal(rest.distance, whole.distance)
+
+
+def test_worker_columns_do_not_depend_on_the_environment(monkeypatch):
+    """Dask sets OPENBLAS_NUM_THREADS=1 in the caller's environment when it starts a cluster, so
+    later worker processes run BLAS on one thread where this process uses all cores: the
+    workers must reuse this solver's multigrid hierarchy (a pseudo-inverse rounds differently
+    on another thread count) so that every column stays bit-identical to its in-process solve."""
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    V, F = meshes.icosphere(2, 1.0)
+    mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=5), F)
+    sets = [[j] for j in range(9)]  # two lane blocks of 8: one per process
+    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+        split = solver.solve_many(sets)
+        alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
+    np.testing.assert_array_equal(split.distance, alone.distance)
+    with pytest.raises(ValueError, match=r"expected hierarchy as a multigrid Hierarchy of 162 unknowns, got str"):
+        wrd.DistanceSolver(mesh, 0.05, hierarchy="multigrid")
+    small = wrd.DistanceSolver(wrd.Mesh(*meshes.icosphere(1, 1.0)), 0.05).hierarchy
+    with pytest.raises(ValueError, match=r"expected hierarchy as a multigrid Hierarchy of 162 unknowns, got 42"):
+        wrd.DistanceSolver(mesh, 0.05, hierarchy=small)

@@ -20,7 +20,7 @@ import numpy as np
 from .matrix_store import average_source_pairs
 from .errors import ConvergenceWarning
 from .solver import DistanceSolver
-from .source_rows import solve_rows
+from .row_solves import solve_rows
 
 __all__ = ["check_client", "solve_blocks", "lazy_matrix"]
 

@@ -41,7 +41,7 @@ import warp as wp
 
 from .kernels.lanes import lane_type, row_dim, thread_span
 from .kernels.multigrid import multigrid_kernels
-from .pcg import csr_arrays
+from .csr import csr_arrays
 
 __all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]
 

@@ -25,19 +25,12 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
+from .csr import csr_arrays
 from .kernels.lanes import row_dim, thread_span
 from .kernels.pcg import ITERATION, RR, pcg_kernels
+from .multigrid import Hierarchy, MultigridPreconditioner, smoothed_aggregation
 
-__all__ = ["BatchedPCG", "JacobiPreconditioner", "csr_arrays"]
-
-
-def csr_arrays(matrix, scalar, device):
-    """(offsets, columns, values) Warp arrays of a scipy sparse matrix, column indices sorted."""
-    M = sp.csr_matrix(matrix)
-    M.sort_indices()
-    return (wp.array(M.indptr.astype(np.int32), dtype=wp.int32, device=device),
-            wp.array(M.indices.astype(np.int32), dtype=wp.int32, device=device),
-            wp.array(M.data, dtype=scalar, device=device))
+__all__ = ["BatchedPCG", "JacobiPreconditioner"]
 
 
 def _write(array, values):
@@ -152,8 +145,6 @@ class BatchedPCG:
 
     def _operator(self, spec, K, scalar, width, blocks):
         """The preconditioner operator for a ``preconditioner`` argument."""
-        from .multigrid import Hierarchy, MultigridPreconditioner, smoothed_aggregation  # multigrid imports pcg
-
         if isinstance(spec, str) and spec == "multigrid":
             spec = smoothed_aggregation(K)
         if isinstance(spec, Hierarchy):

@@ -33,7 +33,7 @@ from .kernels.admm import (CG_TOTAL, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, E
                            R_LAST, R_OUT, RHO_LAST, RHO_OUT, S_LAST, S_OUT, admm_kernels)
 from .kernels.lanes import SCALARS, lane_kernels, lane_type, lane_width, row_dim, thread_span
 from .mesh import Mesh
-from .multigrid import smoothed_aggregation
+from .multigrid import Hierarchy, smoothed_aggregation
 from .operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
@@ -120,7 +120,11 @@ class DistanceSolver:
         copy of the solver at the first such call and are kept for the next ones (see
         :meth:`close`). None: the cores available to the process, used once a batch has at
         least 10^5 vertices x source sets (a worker takes a few seconds to start). Ignored on
-        CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it.
+        CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it:
+        the workers receive this solver's multigrid hierarchy instead of building their own.
+    hierarchy : warp_regdist.multigrid.Hierarchy or None
+        A multigrid hierarchy of this mesh's stiffness matrix W_D to reuse (e.g. a solver's
+        ``hierarchy`` of the same mesh at another alpha_hat); None: built here.
 
     Examples
     --------
@@ -133,7 +137,7 @@ class DistanceSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64", workers=None):
+                 device=None, dtype="float64", workers=None, hierarchy=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -166,7 +170,12 @@ class DistanceSolver:
         self._pair_weights = wp.array(ops.element_volumes[inc, None] * ops.basis[inc, loc],
                                       dtype=wp.types.vector(3, sc), device=dev)
         self._scaled = self.regularizer.weights is None  # Dirichlet: u-step matrix (alpha + rho) W_D
-        self._hierarchy = smoothed_aggregation(ops.stiffness)
+        if hierarchy is None:
+            hierarchy = smoothed_aggregation(ops.stiffness)
+        elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != mesh.n_vertices:
+            raise ValueError(f"expected hierarchy as a multigrid Hierarchy of {mesh.n_vertices} unknowns, got "
+                             f"{hierarchy.sizes[0] if isinstance(hierarchy, Hierarchy) else type(hierarchy).__name__}")
+        self.hierarchy = hierarchy
         self._workspaces = {}
 
     # ------------------------------------------------------------------ input checks
@@ -325,7 +334,8 @@ class DistanceSolver:
         :meth:`close`; a pool with a dead worker is replaced)."""
         if self._pool is None or len(self._pool) < count or not self._pool.alive():
             self.close()
-            self._pool = WorkerPool(_SolverCopy, (self._copy_arguments,), count, first_index=1)
+            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, hierarchy=self.hierarchy),), count,
+                                    first_index=1)
         return self._pool
 
     def close(self):
@@ -360,7 +370,7 @@ class DistanceSolver:
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
                 rho_table=wp.zeros(_RHO_TABLE, dtype=self.scalar, device=dev), y_out=None,
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
-                               self.scalar, W, nb, dev, preconditioner=self._hierarchy),
+                               self.scalar, W, nb, dev, preconditioner=self.hierarchy),
             )
             self._workspaces[key] = ws
         return self._workspaces[key]

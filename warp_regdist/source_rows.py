@@ -19,14 +19,16 @@ import warnings
 
 import numpy as np
 
+from . import distributed
 from .arguments import check_weight, parse_workers
 from .kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from .mesh import Mesh
 from .errors import ConvergenceWarning
+from .row_solves import solve_rows
 from .solver import DistanceSolver
 
-__all__ = ["distance_matrix", "solve_rows"]
+__all__ = ["distance_matrix"]
 
 
 def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
@@ -96,8 +98,6 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     chunk = int(chunk)
     problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype)
     if client is not None:
-        from . import distributed
-
         distributed.check_client(client)
         if out is None:
             if progress is not None:
@@ -127,23 +127,6 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         if symmetrize:
             store.symmetrize(src)
         return store.result()
-
-
-def solve_rows(solver, sources):
-    """Rows (len(sources), n) in the solver's dtype from one batched ADMM, and its warning messages.
-
-    A solve stopped by Ctrl-C raises KeyboardInterrupt: its unfinished rows are never stored.
-    """
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ConvergenceWarning)
-        res = solver.solve_many([[s] for s in sources])
-    if res.interrupted:
-        raise KeyboardInterrupt
-    rows = res.distance.T.astype(solver.dtype)
-    for w in caught:
-        if not issubclass(w.category, ConvergenceWarning):
-            warnings.warn(w.message, w.category, stacklevel=2)
-    return rows, [str(w.message) for w in caught if issubclass(w.category, ConvergenceWarning)]
 
 
 def _solve_blocks_here(solver, blocks):
