@@ -1,0 +1,159 @@
+"""What the subcommands share: the exit-status text, the solver options, output checks,
+source parsing, loading, one solve with its warnings on stderr, and the summary line."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import re
+import sys
+import warnings
+
+import numpy as np
+
+PROG = "warp-regdist"
+DEMO_SOURCE = 2272
+DEMO_ALPHA_HAT = 0.05
+OUTPUT_EXTENSIONS = (".npy", ".csv", ".vtu")
+LISTED_SOURCES = 8  # sources named one by one in the summary
+
+EXIT_STATUS = """\
+exit status:
+  0  the distance was written; also when the ADMM stopped at the iteration cap
+     without meeting its stopping test (then a line 'warp-regdist: warning: ...'
+     on stderr says so and the values are approximate)
+  2  bad input (missing or unreadable mesh, bad --sources, unsupported output
+     extension, unavailable device, ...): one line 'warp-regdist: error: ...'
+"""
+
+
+def solver_options(p: argparse.ArgumentParser) -> None:
+    """--device, --dtype, --quiet."""
+    p.add_argument(
+        "--device",
+        default=None,
+        help="Warp device: cpu, cuda, cuda:1, ... (default: Warp's default, the first CUDA "
+        "GPU if there is one, else cpu)",
+    )
+    p.add_argument(
+        "--dtype",
+        default="float64",
+        choices=("float64", "float32"),
+        help="precision of the solver (default: float64)",
+    )
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
+
+
+def check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in extensions:
+        raise ValueError(f"expected {option} ending in {' or '.join(extensions)}, got {path!r}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"expected {option} in an existing directory, got {path!r} (no directory {folder!r})")
+    if os.path.isdir(path):
+        raise ValueError(f"expected {option} as a file name, got the directory {path!r}")
+    if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise ValueError(f"expected {option} in a writable place, got {path!r} (permission denied)")
+
+
+def parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
+    """Source vertex indices (s,) and their description for the summary."""
+    from .. import boundary_vertices
+
+    if text.strip().lower() == "boundary":
+        sources = boundary_vertices(mesh)
+        if sources.size == 0:
+            raise ValueError("expected a mesh with a boundary for --sources boundary, got a closed mesh")
+        return sources, f"{sources.size} boundary vertices"
+    items = [item.strip() for item in text.split(",")]
+    if not all(re.fullmatch(r"[+-]?\d+", item) for item in items):
+        raise ValueError(
+            f"expected --sources as comma-separated vertex indices (e.g. 2272,17) or 'boundary', got {text!r}"
+        )
+    sources = np.unique(np.array([int(item) for item in items], dtype=np.int64))
+    bad = sources[(sources < 0) | (sources >= mesh.n_vertices)]
+    if bad.size:
+        raise ValueError(
+            f"expected --sources in [0, {mesh.n_vertices - 1}] (the mesh has {mesh.n_vertices} "
+            f"vertices), got {bad[0]}"
+        )
+    listed = ", ".join(str(s) for s in sources[:LISTED_SOURCES])
+    more = f", ... ({sources.size} in all)" if sources.size > LISTED_SOURCES else ""
+    noun = "vertex" if sources.size == 1 else "vertices"
+    return sources, f"source {noun} {listed}{more}"
+
+
+def write_values(path: str, values: np.ndarray) -> None:
+    if path.lower().endswith(".npy"):
+        np.save(path, values)
+    else:
+        with open(path, "w", encoding="ascii") as f:
+            f.writelines(f"{float(v)!r}\n" for v in values)
+
+
+def warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def warnings_to_stderr(reported_by_caller=()):
+    """Record the warnings of the block, then print each as one 'warp-regdist: warning: ...'
+    line, except those of the categories ``reported_by_caller`` (a tuple of classes)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        if not issubclass(w.category, reported_by_caller):
+            warn(str(w.message))
+
+
+def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
+           **regularization):
+    """Solve once; returns (solver, result), reporting non-convergence on stderr
+    (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``regularization``:
+    the DistanceSolver keywords regularizer, beta_hat, vector_field."""
+    import warp as wp
+
+    from .. import ConvergenceWarning, DistanceSolver
+
+    wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
+    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
+    with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
+        result = solver.solve(sources, verbose=verbose)
+    if result.interrupted:
+        warn(f"interrupted at ADMM iteration {result.iterations}: the distance written is the current iterate")
+    elif not result.converged:
+        warn(
+            f"the ADMM did not converge in {result.iterations} iterations (primal residual "
+            f"{result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}); the "
+            "distance written is approximate"
+        )
+    return solver, result
+
+
+def load(path: str):
+    from .. import load_mesh
+
+    with warnings_to_stderr():
+        return load_mesh(path)
+
+
+def summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
+    status = "converged" if result.converged else "NOT converged"
+    elements = "faces" if mesh.element_dim == 2 else "tetrahedra"
+    return (
+        f"{name}: {mesh.n_vertices} vertices, {mesh.n_elements} {elements}. Regularized geodesic "
+        f"distance from {described}, {solver.regularizer.name} regularizer, alpha_hat {solver.alpha_hat:g} "
+        f"(alpha {solver.alpha:.4g}), "
+        f"on {solver.device} in {solver.dtype}: {result.iterations} ADMM iterations, {status} "
+        f"(primal residual {result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}), "
+        f"{result.seconds:.2f} s. Largest finite distance "
+        f"{finite_max(result.distance):.4g}. Wrote {', '.join(written)}."
+    )
+
+
+def finite_max(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")

@@ -1,0 +1,122 @@
+"""The ``distance`` subcommand: the distance on a mesh file, written as .npy, .csv or .vtu."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from .common import (DEMO_ALPHA_HAT, EXIT_STATUS, OUTPUT_EXTENSIONS, check_output, load, parse_sources, solve,
+                     summary, write_values)
+
+
+def add_parser(sub, solver_options) -> None:
+    distance = sub.add_parser(
+        "distance",
+        help="regularized distance on a mesh file, written as .npy, .csv or .vtu",
+        description="Regularized geodesic distance from a set of source vertices on a triangle\n"
+        "mesh (OBJ, OFF, PLY or STL) or a tetrahedral mesh (gmsh .msh, .vtk, .vtu, Medit\n"
+        ".mesh); vertex order as in the file.",
+        epilog=EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    distance.add_argument(
+        "mesh",
+        metavar="MESH",
+        help="triangle or tetrahedral mesh file (.obj, .off, .ply, .stl, .msh, .vtk, .vtu, .mesh)",
+    )
+    distance.add_argument(
+        "--sources",
+        required=True,
+        metavar="LIST",
+        help="comma-separated 0-based vertex indices (e.g. 2272,17), or 'boundary' for all "
+        "boundary vertices",
+    )
+    distance.add_argument(
+        "--alpha-hat",
+        type=float,
+        default=DEMO_ALPHA_HAT,
+        metavar="A",
+        help="scale-invariant regularization weight >= 0; alpha = A sqrt(area), or A volume^(1/3) "
+        "on a tetrahedral mesh (default: 0.05)",
+    )
+    distance.add_argument(
+        "--regularizer",
+        default="dirichlet",
+        choices=("dirichlet", "vector_field", "hessian"),
+        help="dirichlet (default); vector_field: isolines follow the field of --directions; "
+        "hessian: isolines ignore the boundary (triangle meshes; alpha = A area^(3/2), so use "
+        "a much smaller A, e.g. 1e-3)",
+    )
+    distance.add_argument(
+        "--beta-hat",
+        type=float,
+        default=None,
+        metavar="B",
+        help="alignment weight >= 0 of --regularizer vector_field (default: 10)",
+    )
+    distance.add_argument(
+        "--directions",
+        metavar="FILE",
+        help="field of --regularizer vector_field: .npy of shape (faces, 3), one vector per face; "
+        "or .csv with rows 'face,dx,dy,dz' (sign-free directions on a few faces, interpolated "
+        "into the smoothest line field)",
+    )
+    distance.add_argument(
+        "--output",
+        required=True,
+        metavar="FILE",
+        help="distance per vertex: .npy (float64 array), .csv (one value per line, full "
+        "precision, 'inf' for vertices no source reaches) or .vtu (the mesh with point data "
+        "'distance', NaN where no source reaches; opens in ParaView)",
+    )
+    distance.add_argument(
+        "--png",
+        metavar="FILE",
+        help="also write a picture of the distance (.png); on a tetrahedral mesh, its cut by the "
+        "plane z = centre of the bounding box, with isolines",
+    )
+    solver_options(distance)
+
+
+def _regularization(args: argparse.Namespace, mesh) -> dict:
+    """DistanceSolver keywords from --regularizer, --beta-hat and --directions."""
+    from ..line_field import read_directions
+
+    if args.directions is None:
+        if args.regularizer == "vector_field":
+            raise ValueError("expected --directions FILE with --regularizer vector_field, got none")
+        return {"regularizer": args.regularizer, "beta_hat": args.beta_hat}  # the solver refuses a lone beta_hat
+    if args.regularizer != "vector_field":
+        raise ValueError(f"expected --directions only with --regularizer vector_field, "
+                         f"got --regularizer {args.regularizer}")
+    field = read_directions(args.directions, mesh)
+    return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field}
+
+
+def run(args: argparse.Namespace) -> None:
+    from ..export import save_vtu
+    from ..render import render_cut, render_distance
+
+    check_output(args.output, OUTPUT_EXTENSIONS, "--output")
+    if args.png is not None:
+        check_output(args.png, (".png",), "--png")
+    mesh = load(args.mesh)
+    sources, described = parse_sources(args.sources, mesh)
+    solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
+                            **_regularization(args, mesh))
+    if args.output.lower().endswith(".vtu"):
+        save_vtu(args.output, mesh, {"distance": result.distance})
+    else:
+        write_values(args.output, result.distance)
+    written = [args.output]
+    if args.png is not None:
+        marked = None if args.sources.strip().lower() == "boundary" else sources
+        name = os.path.basename(args.mesh)
+        title = f"{name}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
+        if mesh.element_dim == 3:
+            render_cut(mesh, result.distance, args.png, title=f"{title}, cut z = centre")
+        else:
+            render_distance(mesh, result.distance, args.png, sources=marked, title=title)
+        written.append(args.png)
+    if not args.quiet:
+        print(summary(os.path.basename(args.mesh), mesh, described, solver, result, written))
