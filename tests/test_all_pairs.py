@@ -16,7 +16,7 @@ import pytest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
-import warp_regdist.all_pairs_admm as ap
+import warp_regdist.all_pairs_state as all_pairs_state
 from warp_regdist.cli import main
 from warp_regdist.metrics import triangle_inequality_violations
 
@@ -161,10 +161,10 @@ def test_distance_matrix_rows_and_symmetrization(bumpy42):
 
 def test_refuses_what_does_not_fit(bumpy42, monkeypatch):
     mesh, _ = bumpy42
-    monkeypatch.setattr(ap, "_available_memory", lambda device: 1000)
+    monkeypatch.setattr(all_pairs_state, "available_memory", lambda device: 1000)
     with pytest.raises(ValueError, match=r"needs .* GB, got 0\.00 GB available"):
         wrd.all_pairs(mesh, 0.03, device="cpu")
-    device_bytes, host_bytes = ap.memory_estimate(10_000, 20_000, "float32")
+    device_bytes, host_bytes = all_pairs_state.memory_estimate(10_000, 20_000, "float32")
     assert device_bytes + host_bytes < 12e9  # a 10k-vertex surface fits in float32
 
 

@@ -15,6 +15,7 @@ import warp._src.context as warp_context
 import meshes
 import warp_regdist as wrd
 import warp_regdist.all_pairs_admm as ap
+import warp_regdist.all_pairs_checkpoint as all_pairs_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -162,8 +163,8 @@ def test_checkpoint_without_room_is_refused_before_allocating(sphere642, tmp_pat
     def no_state(*args, **kwargs):
         raise AssertionError("allocated before the disk check")
 
-    monkeypatch.setattr(ap, "_SymmetricADMM", no_state)
-    monkeypatch.setattr(ap.shutil, "disk_usage", lambda path: types.SimpleNamespace(free=1000))
+    monkeypatch.setattr(ap, "SymmetricADMM", no_state)
+    monkeypatch.setattr(all_pairs_checkpoint.shutil, "disk_usage", lambda path: types.SimpleNamespace(free=1000))
     with pytest.raises(ValueError, match=r"expected 0\.0\d GB free for the checkpoint .*run\.npz', got 0\.00 GB free"):
         wrd.all_pairs(sphere642, 0.03, device="cpu", checkpoint=tmp_path / "run.npz")
     with pytest.raises(ValueError, match="expected checkpoint in an existing directory"):

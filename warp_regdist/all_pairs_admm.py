@@ -47,28 +47,22 @@ import contextlib
 import json
 import math
 import os
-import shutil
 import time
 import warnings
-import zipfile
 
 import numpy as np
-import scipy.sparse as sp
-import warp as wp
 from scipy.optimize import OptimizeResult
 
-from .kernels.all_pairs import H2, RX2, SX2, U2, X2, all_pairs_kernels
-from .kernels.lanes import DY2, G2, R2, S2, SCALARS, Z2, lane_type, lane_width, row_dim, thread_span
-from .mesh import Mesh
-from .multigrid import smoothed_aggregation
-from .operators import build_operators
-from .pcg import BatchedPCG
-from .processes import SharedArrays, WorkerPool, processes_available
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, ExtrapolatedChangeTest, PenaltySchedule, check_schedule, run_iterations
+from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, problem_fingerprint, read_checkpoint
+from .all_pairs_state import STATE_ROWS, SymmetricADMM, check_memory
 from .arguments import check_weight, parse_device, parse_workers
-from .file_lock import FileLock
 from .errors import ConvergenceWarning
+from .file_lock import FileLock
+from .kernels.all_pairs import H2, RX2, SX2, U2, X2
+from .kernels.lanes import SCALARS
+from .mesh import Mesh
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -101,261 +95,6 @@ class AllPairsResult(OptimizeResult):
     memory_bytes : int
         Estimated footprint of the solver's arrays (device and host).
     """
-
-
-def _available_memory(device):
-    """Bytes available on the device (MemAvailable of /proc/meminfo for the CPU)."""
-    if device.is_cuda:
-        return int(device.free_memory)
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
-
-
-def memory_estimate(n, m, dtype="float64", device="cpu"):
-    """Bytes needed by :func:`all_pairs` for n vertices and m triangles.
-
-    Device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
-    the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4), the multigrid levels
-    (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus the float64 (n, n) result on the host,
-    the U of the last change test in the solver's precision (and, on a GPU, the copy back to
-    the host in the solver's precision).
-    """
-    W = lane_width(SCALARS[dtype], n)
-    cols = -(-n // W) * W
-    size = np.dtype(dtype).itemsize
-    device_bytes = size * cols * (12 * n + 3 * m)
-    host_bytes = 8 * n * n + size * n * cols * (2 if wp.get_device(device).is_cuda else 1)
-    return device_bytes, host_bytes
-
-
-def _even_splits(weights, parts):
-    """Bounds b_0 = 0 <= ... <= b_parts = len(weights) cutting ``weights`` into ``parts`` runs of
-    about equal sums (a run may be empty when single items outweigh a share)."""
-    cum = np.concatenate([[0.0], np.cumsum(weights)])
-    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, parts) / parts)
-    return np.concatenate([[0], np.clip(cuts, 0, len(weights)), [len(weights)]]).tolist()
-
-
-class _Setup:
-    """Host data that every part of the iteration needs (pickled to the worker processes)."""
-
-    def __init__(self, mesh, alpha_hat, dtype, rho2_factor, parts):
-        self.n, self.m = mesh.n_vertices, mesh.n_elements
-        self.dtype = dtype
-        ops = build_operators(mesh)
-        self.elements = mesh.elements.astype(np.int32)
-        self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
-        self.divergence = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()  # D = G^T M_F
-        self.stiffness = ops.stiffness.tocsr()
-        self.A, self.L = ops.total_volume, ops.length_scale
-        self.alpha = alpha_hat * ops.length_scale
-        self.W = lane_width(SCALARS[dtype], self.n)
-        self.nb = -(-self.n // self.W)
-        self.relaxation = tolerances.relaxation
-        # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
-        # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
-        # W_D's own hierarchy ignores, in the preconditioner.
-        self.K_mid = self.matrix(1.0, rho2_factor * math.sqrt(tolerances.pairs_rho0 * tolerances.pairs_rho_max)
-                                 / self.A)
-        self.hierarchy = smoothed_aggregation(self.K_mid)
-        self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
-        self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
-
-    def matrix(self, stiffness_weight, mass_weight):
-        """K2 = stiffness_weight W_D + mass_weight M_V."""
-        return (stiffness_weight * self.stiffness + mass_weight * sp.diags(self.vertex_volumes)).tocsr()
-
-    def state_specs(self):
-        """Shapes and numpy dtypes of the iteration's state (lane axis last)."""
-        n, m, nb, W, dt = self.n, self.m, self.nb, self.W, np.dtype(self.dtype)
-        specs = {name: ((n, nb, W), dt) for name in STATE_ROWS}
-        specs.update(v=((m, 3, nb, W), dt), rhs=((n, nb, W), dt), acc=((5, nb, W), dt), acc_pairs=((nb, 5), dt))
-        return specs
-
-
-STATE_ROWS = ("X", "U", "H", "DZ", "DZ_acc", "DY_acc")
-"""The (n, n) state arrays; with ``v`` (3m, n) they are what a checkpoint holds."""
-
-
-class _Part:
-    """Part t of one iteration: column blocks [b_t, b_t+1) of the vertex, X- (its own PCG) and
-    element steps, and consensus tile rows [i_t, i_t+1). Built in the calling process (t = 0)
-    or in a worker process on the same shared state."""
-
-    def __init__(self, setup, arrays, t):
-        sc = SCALARS[setup.dtype]
-        V = lane_type(sc, setup.W)
-        if isinstance(arrays, SharedArrays):
-            self._shared = arrays  # the mapping lives as long as its views
-            arrays = {name: arrays.warp(name, sc if name == "acc_pairs" else V) for name in setup.state_specs()}
-        self.setup = setup
-        self.scalar = sc
-        dev = arrays["X"].device
-        n, m, nb, W = setup.n, setup.m, setup.nb, setup.W
-        k = all_pairs_kernels(sc, W)
-        b0, b1 = setup.blocks[t], setup.blocks[t + 1]
-        i0, i1 = setup.rows[t], setup.rows[t + 1]
-        cols = slice(b0, b1)
-        span = thread_span(dev, b1 - b0, nb)
-        area = np.zeros(nb * W)
-        area[:n] = setup.vertex_volumes
-        self._arrays = dict(
-            elements=wp.array(setup.elements, dtype=wp.int32, device=dev),
-            basis=wp.array(setup.basis, dtype=wp.types.vector(3, sc), device=dev),
-            volumes=wp.array(setup.volumes, dtype=sc, device=dev),
-            vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
-            lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
-            # one row of column masks (1 on real columns, 0 on padding), broadcast to n rows by a zero stride
-            mask_row=wp.array((area > 0).astype(np.float64)[b0 * W:b1 * W].reshape(1, b1 - b0, W), dtype=V,
-                              device=dev))
-        a = self._arrays
-        self.mask = wp.array(ptr=a["mask_row"].ptr, shape=(n, b1 - b0), strides=(0, a["mask_row"].strides[1]),
-                             dtype=V, device=dev)
-        self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
-        # each process launches from one thread, so on the CPU the CG loop can be one captured graph
-        self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
-        self.vertex = wp.launch(k.vertex_step, row_dim(n, span, b1 - b0), device=dev, record_cmd=True,
-                                inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
-                                + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
-                                + [*span, n])
-        self.element = wp.launch(k.element_step, row_dim(m, span, b1 - b0), device=dev, record_cmd=True,
-                                 inputs=[a["elements"], a["basis"], a["volumes"], self.X, arrays["v"][:, :, cols],
-                                         sc(1.0), sc(1.0), sc(setup.relaxation), arrays["DZ_acc"][:, cols],
-                                         arrays["DY_acc"][:, cols], arrays["acc"][:, cols], *span, m])
-        self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
-            arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
-            arrays["acc_pairs"], i0, n]) if i1 > i0 else None
-        self.columns = slice(b0 * W, b1 * W)
-
-    def set_penalties(self, stiffness_weight, mass_weight):
-        self.pcg.set_matrix(self.setup.matrix(stiffness_weight, mass_weight))
-
-    def right_hand_side(self, rho, rho2):
-        self.vertex.set_param_by_name("rho", self.scalar(rho))
-        self.vertex.set_param_by_name("rho2", self.scalar(rho2))
-        self.vertex.launch()
-
-    def x_and_element_steps(self, atol, rtol, max_iterations, rho_v, rho):
-        """The X-step's PCG on this part's columns, then their z/y-step; returns the CG iterations."""
-        it, _ = self.pcg.solve(self.rhs, self.X, self.mask, rtol, max_iterations, atol[self.columns])
-        self.element.set_param_by_name("rho_v", self.scalar(rho_v))
-        self.element.set_param_by_name("rho", self.scalar(rho))
-        self.element.launch()
-        return it
-
-    def consensus_step(self, rho2):
-        if self.consensus is not None:  # None: this part has no tile rows
-            self.consensus.set_param_by_name("rho2", self.scalar(rho2))
-            self.consensus.launch()
-
-
-class _SymmetricADMM:
-    """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
-
-    On the CPU the iteration is split into up to ``workers`` parts (by default at most one
-    per 10^6 pairs), each run by its own process on state in shared memory (a CPU launch runs on one
-    core): the part in this process and the others in :class:`~warp_regdist.processes.WorkerPool`
-    workers meet three times per iteration. Every sum that decides the iteration is made per
-    column or per consensus tile row, so the iterates do not depend on the split.
-    """
-
-    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers, auto_workers=False):
-        n = mesh.n_vertices
-        nb = -(-n // lane_width(SCALARS[dtype], n))
-        parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
-        if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
-            parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(mesh, alpha_hat, dtype, rho2_factor, parts)
-        self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
-        self.column_area = np.zeros(setup.nb * setup.W)
-        self.column_area[:n] = setup.vertex_volumes
-        sc = SCALARS[dtype]
-        V = lane_type(sc, setup.W)
-        specs = setup.state_specs()
-        self.shared = SharedArrays(specs) if parts > 1 else None
-        self.arrays = {name: (self.shared.warp(name, sc if name == "acc_pairs" else V) if self.shared else
-                              wp.zeros(shape[:-1] if name != "acc_pairs" else shape, dtype=sc if name == "acc_pairs"
-                                       else V, device=device))
-                       for name, (shape, _) in specs.items()}
-        self.part = _Part(setup, self.arrays, 0)
-        self.pool = (WorkerPool(_Part, (setup, self.shared), parts - 1, first_index=1, shared=[self.shared])
-                     if parts > 1 else None)
-        self.rho_v = 1.0  # the rho that formed v (any value while v = 0)
-        self.penalties = None  # (rho, rho2) of the PCG matrices
-
-    def close(self):
-        """End the worker processes."""
-        if self.pool is not None:
-            self.pool.close()
-
-    def _each(self, method, *args):
-        """part.method(*args) in every part, this process's while the workers run theirs."""
-        if self.pool is None:
-            return [getattr(self.part, method)(*args)]
-        self.pool.start(method, [args] * len(self.pool))
-        try:
-            mine = getattr(self.part, method)(*args)
-        finally:
-            others = self.pool.finish()
-        return [mine] + others
-
-    def set_penalties(self, rho, rho2):
-        if (rho, rho2) != self.penalties:
-            self._each("set_penalties", self.alpha + rho, rho2)
-            self.penalties = (rho, rho2)
-
-    def right_hand_side(self):
-        """rhs of the X-step and D Z; returns per-column |D(Z - Z_old)|^2 and |D Y|^2 (nb W,)."""
-        self.arrays["acc"].zero_()
-        self._each("right_hand_side", *self.penalties)
-        acc = self.arrays["acc"].numpy().reshape(5, -1)
-        return acc[S2].astype(np.float64), acc[DY2].astype(np.float64)
-
-    def x_and_element_steps(self, atol, rtol, max_iterations):
-        """X-step (PCG) then z/y-step of every part; returns the largest PCG iteration count."""
-        self.arrays["acc"].zero_()
-        rho = self.penalties[0]
-        its = self._each("x_and_element_steps", atol, rtol, max_iterations, self.rho_v, rho)
-        self.rho_v = rho
-        return max(its)
-
-    def consensus(self):
-        """U/H-step; returns (per-column R2, G2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
-        self.arrays["acc_pairs"].zero_()
-        self._each("consensus_step", self.penalties[1])
-        acc = self.arrays["acc"].numpy().reshape(5, -1)
-        pairs = self.arrays["acc_pairs"].numpy().astype(np.float64).sum(axis=0)  # fixed order: tile rows
-        return acc[[R2, G2, Z2]].astype(np.float64), pairs
-
-    def divergences_from_element_state(self):
-        """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
-        what the last element step scattered (D = G^T M_F, (n, 3m))."""
-        D, m = self.setup.divergence, self.m
-        v = self.get("v").astype(np.float64)
-        z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
-        shape = self.arrays["DZ"].numpy().shape
-        dz = (D @ z.reshape(3 * m, -1)).reshape(shape)
-        for name in ("DZ", "DZ_acc"):
-            self.put(name, dz)
-        self.put("DY_acc", (self.rho_v * (D @ (v - z).reshape(3 * m, -1))).reshape(shape))
-
-    def distance(self):
-        """U as an (n, n) float64 array (the U-step writes the same value to U_ij and U_ji)."""
-        return self.arrays["U"].numpy().reshape(self.n, -1)[:, :self.n].astype(np.float64)
-
-    def get(self, name):
-        """A copy of state array ``name`` as numpy (lane axis last)."""
-        return np.array(self.arrays[name].numpy())
-
-    def put(self, name, values):
-        self.arrays[name].assign(values)
-
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, eps_rel=None,
               eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, progress=None,
@@ -473,24 +212,24 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if labels.max() > 0:
         raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
                          "(solve each component separately)")
-    fingerprint = _fingerprint(mesh, alpha_hat, dtype, rho2_factor)
+    fingerprint = problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor)
     if resume is not None and initial is not None:
         raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: {os.fspath(resume)!r} "
                          f"and {os.fspath(initial)!r}")
     if checkpoint is not None:
-        _check_checkpoint_room(checkpoint, checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations))
+        check_checkpoint_room(checkpoint, checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations))
     with contextlib.ExitStack() as stack:
         if checkpoint is not None:
             stack.enter_context(FileLock(checkpoint, "the checkpoint"))
-        saved = _read_checkpoint(resume, fingerprint, mesh.n_elements) if resume is not None else None
-        start = (_read_checkpoint(initial, fingerprint, mesh.n_elements, ("mesh_sha256", "n_vertices", "dtype"),
+        saved = read_checkpoint(resume, fingerprint, mesh.n_elements) if resume is not None else None
+        start = (read_checkpoint(initial, fingerprint, mesh.n_elements, ("mesh_sha256", "n_vertices", "dtype"),
                                   "initial") if initial is not None else None)
         dev = parse_device(device)
-        memory = _check_memory(mesh.n_vertices, mesh.n_elements, dtype, dev)
+        memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, dev)
         if saved is not None and "final" in saved:
             return _final_result(saved, memory, checkpoint)
         state = stack.enter_context(contextlib.closing(
-            _SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)))
+            SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)))
         run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
                    cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change,
                    PenaltySchedule.all_pairs(tolerances, state.L) if schedule is None else schedule)
@@ -499,119 +238,6 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         if start is not None:
             run.warm_start(start)
         return run.iterate(t0)
-
-
-def _check_memory(n, m, dtype, dev):
-    """The footprint (bytes) of an all-pairs run; ValueError when it exceeds the available memory."""
-    device_bytes, host_bytes = memory_estimate(n, m, dtype, dev)
-    if dev.is_cuda:
-        cpu_available = _available_memory(wp.get_device("cpu"))
-        if device_bytes > _available_memory(dev) or host_bytes > cpu_available:
-            raise ValueError(f"expected enough memory for {n} vertices in {dtype}: needs {device_bytes / 1e9:.2f} GB "
-                             f"on {dev} and {host_bytes / 1e9:.2f} GB on the host, got {_available_memory(dev) / 1e9:.2f} "
-                             f"GB and {cpu_available / 1e9:.2f} GB available")
-    else:
-        available = _available_memory(dev)
-        if device_bytes + host_bytes > available:
-            raise ValueError(f"expected enough memory for {n} vertices in {dtype}: needs "
-                             f"{(device_bytes + host_bytes) / 1e9:.2f} GB, got {available / 1e9:.2f} GB available"
-                             + (" (float32 halves it)" if dtype == "float64" else ""))
-    return device_bytes + host_bytes
-
-
-def checkpoint_bytes(n, m, dtype, max_iterations):
-    """Upper bound of the size of an all-pairs checkpoint file: the (n, n) state arrays and the
-    (3m, n) element state in ``dtype`` (lanes padded), the residual history, small scalars."""
-    W = lane_width(SCALARS[dtype], n)
-    cols = -(-n // W) * W
-    return (np.dtype(dtype).itemsize * cols * ((len(STATE_ROWS) + 1) * n + 3 * m + 8)  # + the change test's U
-            + 56 * (max_iterations + 1) + 65536)
-
-
-def _check_checkpoint_room(path, size):
-    """ValueError unless ``path`` can be written and its file system has ``size`` bytes free."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise ValueError(f"expected checkpoint in an existing directory, got {path!r} (no directory {folder!r})")
-    if os.path.isdir(path) or not os.access(folder, os.W_OK):
-        raise ValueError(f"expected checkpoint as a writable file name, got {path!r}")
-    free = shutil.disk_usage(folder).free
-    if size > free:
-        raise ValueError(f"expected {size / 1e9:.2f} GB free for the checkpoint {path!r}, got {free / 1e9:.2f} GB "
-                         f"free on its file system")
-
-
-def _fingerprint(mesh, alpha_hat, dtype, rho2_factor):
-    """What identifies the problem of a checkpoint (JSON-able dict)."""
-    return dict(mesh_sha256=mesh.sha256(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
-                dtype=dtype, rho2_factor=float(rho2_factor))
-
-
-def _read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
-    """The arrays of checkpoint ``path`` (the ``role`` argument) after checking that it agrees with
-    ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem."""
-    path = os.fspath(path)
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            saved = {k: f[k] for k in f.files}
-        theirs = json.loads(str(saved["fingerprint"]))
-        if not isinstance(theirs, dict):
-            raise ValueError(f"a fingerprint {theirs!r}")
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError) as exc:
-        raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
-                         f"({type(exc).__name__}: {exc})") from None
-    differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
-    if differ:
-        shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
-        got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
-        what = "this problem" if keys is None else "this mesh and dtype"
-        raise ValueError(f"expected a checkpoint of {what} ({shown}), got one of another problem ({got}) "
-                         f"in {path!r}")
-    _check_checkpoint_arrays(saved, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path, role)
-    return saved
-
-
-def _checkpoint_shapes(n, m, dtype):
-    """{name: (shape, dtype)} of the arrays an all-pairs checkpoint of n vertices and m triangles may hold."""
-    W = lane_width(SCALARS[dtype], n)
-    nb = -(-n // W)
-    state, f8 = ((n, nb, W), dtype), "float64"
-    shapes = {name: state for name in STATE_ROWS + ("change_snapshot",)}
-    shapes.update(v=((m, 3, nb, W), dtype), iteration=((), "int64"), rho_v=((), f8), cg_iterations=((), "int64"),
-                  seconds=((), f8), penalties=((2,), f8), cols=((3, nb * W), f8), pairs=((5,), f8),
-                  change=((2,), f8), residuals=((7,), f8), tolerance=((7,), f8), final=((), "bool"))
-    return shapes
-
-
-def _check_checkpoint_arrays(saved, n, m, dtype, path, role):
-    """ValueError unless ``saved`` holds the arrays a run of this problem needs, of their shapes and dtypes."""
-    shapes = _checkpoint_shapes(n, m, dtype)
-    if role == "initial":
-        required = ("X", "U", "H", "v", "rho_v")
-    else:
-        required = ("X", "U", "H", "v", "iteration", "rho_v", "cg_iterations", "seconds", "history")
-        required += ("residuals", "tolerance") if "final" in saved else ("DZ", "DZ_acc", "DY_acc")
-        if "iteration" in saved and saved["iteration"].ndim == 0 and saved["iteration"] > 0:
-            required += ("penalties", "cols", "pairs")
-    missing = [name for name in required if name not in saved]
-    if missing:
-        raise ValueError(f"expected {role} as a complete all-pairs checkpoint, got {path!r} without "
-                         f"{', '.join(missing)}")
-    for name, a in saved.items():
-        if name == "history":
-            ok = a.ndim == 2 and a.shape[1] == 7 and a.dtype == np.float64
-            expected = "(k, 7) float64"
-        elif name in shapes:
-            shape, kind = shapes[name]
-            ok = a.shape == shape and a.dtype == np.dtype(kind)
-            expected = f"{shape} {kind}"
-        else:
-            continue
-        if not ok:
-            raise ValueError(f"expected {role} checkpoint array {name!r} of shape and dtype {expected}, got "
-                             f"{a.shape} {a.dtype} in {path!r}")
-
 
 def _final_result(saved, memory, checkpoint):
     """The result recorded in the checkpoint of a converged run."""
@@ -624,7 +250,7 @@ def _final_result(saved, memory, checkpoint):
 
 
 class _Run:
-    """The ADMM iterations of :func:`all_pairs` on a :class:`_SymmetricADMM`, with checkpoints.
+    """The ADMM iterations of :func:`all_pairs` on a :class:`SymmetricADMM`, with checkpoints.
 
     A checkpoint is the state at the top of an iteration: the state arrays, the penalties that
     formed the last iterate, the last element and consensus sums (the residuals of that

@@ -1,0 +1,110 @@
+"""All-pairs checkpoints: their size, the room for them, the fingerprint of the problem they hold,
+and reading one back as data (never unpickled), checked against the problem before use."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import zipfile
+
+import numpy as np
+
+from .all_pairs_state import STATE_ROWS
+from .kernels.lanes import SCALARS, lane_width
+
+__all__ = ["checkpoint_bytes", "check_checkpoint_room", "problem_fingerprint", "read_checkpoint"]
+
+
+def checkpoint_bytes(n, m, dtype, max_iterations):
+    """Upper bound of the size of an all-pairs checkpoint file: the (n, n) state arrays and the
+    (3m, n) element state in ``dtype`` (lanes padded), the residual history, small scalars."""
+    W = lane_width(SCALARS[dtype], n)
+    cols = -(-n // W) * W
+    return (np.dtype(dtype).itemsize * cols * ((len(STATE_ROWS) + 1) * n + 3 * m + 8)  # + the change test's U
+            + 56 * (max_iterations + 1) + 65536)
+
+
+def check_checkpoint_room(path, size):
+    """ValueError unless ``path`` can be written and its file system has ``size`` bytes free."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"expected checkpoint in an existing directory, got {path!r} (no directory {folder!r})")
+    if os.path.isdir(path) or not os.access(folder, os.W_OK):
+        raise ValueError(f"expected checkpoint as a writable file name, got {path!r}")
+    free = shutil.disk_usage(folder).free
+    if size > free:
+        raise ValueError(f"expected {size / 1e9:.2f} GB free for the checkpoint {path!r}, got {free / 1e9:.2f} GB "
+                         f"free on its file system")
+
+
+def problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor):
+    """What identifies the problem of a checkpoint (JSON-able dict)."""
+    return dict(mesh_sha256=mesh.sha256(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
+                dtype=dtype, rho2_factor=float(rho2_factor))
+
+
+def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
+    """The arrays of checkpoint ``path`` (the ``role`` argument) after checking that it agrees with
+    ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem."""
+    path = os.fspath(path)
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            saved = {k: f[k] for k in f.files}
+        theirs = json.loads(str(saved["fingerprint"]))
+        if not isinstance(theirs, dict):
+            raise ValueError(f"a fingerprint {theirs!r}")
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError) as exc:
+        raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
+                         f"({type(exc).__name__}: {exc})") from None
+    differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
+    if differ:
+        shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
+        got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
+        what = "this problem" if keys is None else "this mesh and dtype"
+        raise ValueError(f"expected a checkpoint of {what} ({shown}), got one of another problem ({got}) "
+                         f"in {path!r}")
+    check_checkpoint_arrays(saved, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path, role)
+    return saved
+
+
+def checkpoint_shapes(n, m, dtype):
+    """{name: (shape, dtype)} of the arrays an all-pairs checkpoint of n vertices and m triangles may hold."""
+    W = lane_width(SCALARS[dtype], n)
+    nb = -(-n // W)
+    state, f8 = ((n, nb, W), dtype), "float64"
+    shapes = {name: state for name in STATE_ROWS + ("change_snapshot",)}
+    shapes.update(v=((m, 3, nb, W), dtype), iteration=((), "int64"), rho_v=((), f8), cg_iterations=((), "int64"),
+                  seconds=((), f8), penalties=((2,), f8), cols=((3, nb * W), f8), pairs=((5,), f8),
+                  change=((2,), f8), residuals=((7,), f8), tolerance=((7,), f8), final=((), "bool"))
+    return shapes
+
+
+def check_checkpoint_arrays(saved, n, m, dtype, path, role):
+    """ValueError unless ``saved`` holds the arrays a run of this problem needs, of their shapes and dtypes."""
+    shapes = checkpoint_shapes(n, m, dtype)
+    if role == "initial":
+        required = ("X", "U", "H", "v", "rho_v")
+    else:
+        required = ("X", "U", "H", "v", "iteration", "rho_v", "cg_iterations", "seconds", "history")
+        required += ("residuals", "tolerance") if "final" in saved else ("DZ", "DZ_acc", "DY_acc")
+        if "iteration" in saved and saved["iteration"].ndim == 0 and saved["iteration"] > 0:
+            required += ("penalties", "cols", "pairs")
+    missing = [name for name in required if name not in saved]
+    if missing:
+        raise ValueError(f"expected {role} as a complete all-pairs checkpoint, got {path!r} without "
+                         f"{', '.join(missing)}")
+    for name, a in saved.items():
+        if name == "history":
+            ok = a.ndim == 2 and a.shape[1] == 7 and a.dtype == np.float64
+            expected = "(k, 7) float64"
+        elif name in shapes:
+            shape, kind = shapes[name]
+            ok = a.shape == shape and a.dtype == np.dtype(kind)
+            expected = f"{shape} {kind}"
+        else:
+            continue
+        if not ok:
+            raise ValueError(f"expected {role} checkpoint array {name!r} of shape and dtype {expected}, got "
+                             f"{a.shape} {a.dtype} in {path!r}")
