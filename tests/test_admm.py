@@ -234,12 +234,13 @@ def test_device_change_test_matches_the_host_rule():
 def test_captured_graph_launches_and_sparse_checks_give_the_same_solve(sphere162, monkeypatch):
     """The captured iteration, the same launches one by one, and host reads every 7 iterations
     (the device freezes each column at its own iteration): the same columns, bit for bit."""
+    from warp_regdist import single_source_batch
     from warp_regdist import solver as solver_module
 
     solver = wrd.DistanceSolver(sphere162[0], 0.05, workers=1)
     sets = [[j * 17] for j in range(6)] + [[3, 90]]
     graph = solver.solve_many(sets, keep_duals=True)
-    monkeypatch.setattr(solver_module, "_CAPTURE", False)
+    monkeypatch.setattr(single_source_batch, "CAPTURE", False)
     launches = solver.solve_many(sets, keep_duals=True)
     monkeypatch.setattr(solver_module, "_CHECK_EVERY", {False: 7, True: 7})
     sparse = solver.solve_many(sets, keep_duals=True)

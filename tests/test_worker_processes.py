@@ -225,3 +225,19 @@ def test_worker_columns_do_not_depend_on_the_environment(monkeypatch):
     small = wrd.DistanceSolver(wrd.Mesh(*meshes.icosphere(1, 1.0)), 0.05).hierarchy
     with pytest.raises(ValueError, match=r"expected hierarchy as a multigrid Hierarchy of 162 unknowns, got 42"):
         wrd.DistanceSolver(mesh, 0.05, hierarchy=small)
+
+
+def test_workers_run_under_the_callers_tolerances():
+    """The caller's tolerances travel with each call (a copy), so an override in the parent
+    governs the worker's columns too: the same iterations and values as in one process."""
+    V, F = meshes.icosphere(2, 1.0)
+    mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=6), F)
+    sets = [[j] for j in range(9)]
+    with wrd.tolerances.override(eps_rel=1e-4, eps_rel_dual=0.05, change_window=5):
+        with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+            split = solver.solve_many(sets)
+        alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
+    default = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
+    np.testing.assert_array_equal(split.iterations, alone.iterations)
+    np.testing.assert_array_equal(split.distance, alone.distance)
+    assert split.iterations[8] > default.iterations[8]  # the override held in the worker

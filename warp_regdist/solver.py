@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import time
 import warnings
 
@@ -29,9 +28,9 @@ import numpy as np
 import warp as wp
 from scipy.optimize import OptimizeResult
 
-from .kernels.admm import (CG_TOTAL, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
-                           R_LAST, R_OUT, RHO_LAST, RHO_OUT, S_LAST, S_OUT, admm_kernels)
-from .kernels.lanes import SCALARS, lane_kernels, lane_type, lane_width, row_dim, thread_span
+from .kernels.admm import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST, RHO_LAST,
+                           S_LAST)
+from .kernels.lanes import SCALARS, lane_type, lane_width
 from .mesh import Mesh
 from .multigrid import Hierarchy, smoothed_aggregation
 from .operators import build_operators
@@ -42,6 +41,7 @@ from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .errors import ConvergenceWarning
 from .regularizers import build_regularizer
+from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, DeviceRule, Workspace, collect, lanes
 from .tolerances import tolerances
 
 __all__ = ["DistanceSolver", "DistanceResult"]
@@ -78,14 +78,6 @@ class DistanceResult(OptimizeResult):
 _CHECK_EVERY = {False: 1, True: 10}
 """ADMM iterations between the host's reads of the per-lane test state, on the CPU and on CUDA
 (the device decides and freezes each column at its iteration; the host collects and compacts)."""
-
-_CAPTURE = True
-"""On the CPU, replay each batch's iteration as one captured Warp graph (False: the same recorded
-launches one by one, the host reading the CG loop's flag; the same numbers)."""
-
-_RHO_TABLE = 64
-"""Entries of the device's penalty table rho_table (iteration it at it % _RHO_TABLE; the host writes
-each iteration's entry just before the replay that reads it)."""
 
 _PROCESS_WORK = 100_000
 """Vertices x source sets from which solve_many starts worker processes by default (spot x 21)."""
@@ -294,7 +286,7 @@ class DistanceSolver:
                 parts = [self._admm(groups[0], workspace, verbose, starts[0], keep_duals, schedule)]
             else:
                 pool = self._worker_pool(len(groups) - 1)
-                settings = dataclasses.asdict(tolerances)
+                settings = dataclasses.replace(tolerances)  # a copy: the workers run under this call's settings
                 pool.start("solve", [(g, W, settings, st, keep_duals, schedule) for g, st in zip(groups[1:], starts[1:])])
                 try:
                     with watch(pool):
@@ -358,7 +350,7 @@ class DistanceSolver:
             self._workspaces = {}
             V = lane_type(self.scalar, W)
             n, m, dev = self.mesh.n_vertices, self.mesh.n_elements, self.device
-            ws = dict(
+            ws = Workspace(
                 width=W, u=wp.zeros((n, nb), dtype=V, device=dev), mask=wp.zeros((n, nb), dtype=V, device=dev),
                 Dy=wp.zeros((n, nb), dtype=V, device=dev), Dz=wp.zeros((n, nb), dtype=V, device=dev),
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
@@ -368,14 +360,14 @@ class DistanceSolver:
                 # per-lane state, the iterates frozen when a lane's test first held, counters, penalties
                 snapshot=wp.zeros((n, nb), dtype=V, device=dev), u_out=wp.zeros((n, nb), dtype=V, device=dev),
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
-                rho_table=wp.zeros(_RHO_TABLE, dtype=self.scalar, device=dev), y_out=None,
+                rho_table=wp.zeros(RHO_TABLE, dtype=self.scalar, device=dev),
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
                                self.scalar, W, nb, dev, preconditioner=self.hierarchy),
             )
             self._workspaces[key] = ws
         return self._workspaces[key]
 
-    def _admm(self, sets, ws, verbose, start=None, keep_duals=False, schedule=None):
+    def _admm(self, sets, ws, verbose, start=None, keep_duals=False, schedule=None, tol=None):
         """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks), from
         zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), with the
         penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``).
@@ -385,12 +377,12 @@ class DistanceSolver:
         (frozen on the device at the iteration their test held) and to compact the batch.
         """
         t0 = time.perf_counter()
-        tol = tolerances
+        tol = tolerances if tol is None else tol
         factor = self.regularizer.tolerance_factor
         k = len(sets)
         n, m = self.mesh.n_vertices, self.mesh.n_elements
-        nb = ws["u"].shape[1]
-        W = ws["width"]
+        nb = ws.u.shape[1]
+        W = ws.width
         # u-step right-hand side divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
         shift, scale = (self.alpha, 1.0) if self._scaled else (1.0, 0.0)
 
@@ -402,9 +394,9 @@ class DistanceSolver:
             src, reach = sets[min(j, k - 1)]
             free[:, j] = reach
             free[src, j] = 0.0
-        ws["mask"].assign(free.reshape(n, nb, W))
+        ws.mask.assign(free.reshape(n, nb, W))
         for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "step"):
-            ws[name].zero_()
+            getattr(ws, name).zero_()
         L = self.operators.length_scale
         A = self.operators.total_volume
         if schedule is None:
@@ -415,14 +407,14 @@ class DistanceSolver:
         if start is not None:
             u0, y0, penalty = start
             u0 = np.where(np.isfinite(u0), u0, 0.0) * free[:, :k]
-            ws["u"].assign(_lanes(u0, nb, W))
-            ws["snapshot"].assign(_lanes(u0, nb, W))
+            ws.u.assign(lanes(u0, nb, W))
+            ws.snapshot.assign(lanes(u0, nb, W))
             if y0 is not None:
-                ws["y"].assign(_lanes(y0, nb, W))
-                ws["z"].assign(_lanes(self._project_gradient(u0), nb, W))
+                ws.y.assign(lanes(y0, nb, W))
+                ws.z.assign(lanes(self._project_gradient(u0), nb, W))
                 offset = schedule.offset_for(L * float(np.median(penalty)))
-        if keep_duals and ws["y_out"] is None:
-            ws["y_out"] = wp.zeros_like(ws["y"])
+        if keep_duals and ws.y_out is None:
+            ws.y_out = wp.zeros_like(ws.y)
 
         eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
         # per slot: (eps_abs sqrt(n_free) A, |mask A_V|). The dual residual is measured against
@@ -435,25 +427,26 @@ class DistanceSolver:
         lane = np.zeros((LANE_ROWS, nb * W))
         lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
         lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, eps_dual_abs + eps_rel_dual * load_norm
-        ws["lane"].assign(lane.reshape(LANE_ROWS, nb, W))
-        ws["pcg"].configure(tol.cg_rtol, tol.cg_max_iterations)
-        batch = _ColumnBatch(self, ws, W, nb, tol.change_window, dict(
+        ws.lane.assign(lane.reshape(LANE_ROWS, nb, W))
+        ws.pcg.configure(tol.cg_rtol, tol.cg_max_iterations)
+        rule = DeviceRule(
             eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
             eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
             # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
             # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
             cg_primal=tol.cg_primal_fraction * L ** (0.5 * self.mesh.element_dim - 1.0),
-            alpha=self.alpha, shift=shift, scale=scale, length=L))
-        run = _BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
+            alpha=self.alpha, shift=shift, scale=scale, length=L)
+        batch = ColumnBatch(self, ws, W, nb, tol.change_window, rule, tol.relaxation)
+        run = BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
         it, reason = run_iterations(run, 0, tol.max_iterations, _CHECK_EVERY[self.device.is_cuda])
         iterations, out, y_out, r_out, s_out, rho_out = (run.iterations, run.out, run.y_out, run.r_out, run.s_out,
                                                           run.rho_out)
-        state = ws["lane"].numpy().reshape(LANE_ROWS, -1)  # the last iterate's, tested or not (Ctrl-C)
+        state = ws.lane.numpy().reshape(LANE_ROWS, -1)  # the last iterate's, tested or not (Ctrl-C)
 
         late = np.flatnonzero(slot_col[:batch.blocks * W] >= 0)
         if late.size:
             cols = slot_col[late]
-            self._collect(ws, False, late, cols, out, y_out)
+            collect(ws, False, late, cols, out, y_out)
             r_out[cols], s_out[cols], rho_out[cols] = state[R_LAST, late], state[S_LAST, late], state[RHO_LAST, late]
         u = out
         for j, (src, reach) in enumerate(sets):
@@ -463,20 +456,11 @@ class DistanceSolver:
         res = DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
             primal_residual=r_out, dual_residual=s_out, penalty=rho_out,
-            cg_iterations=int(ws["step"].numpy()[CG_TOTAL]), seconds=time.perf_counter() - t0,
+            cg_iterations=int(ws.step.numpy()[CG_TOTAL]), seconds=time.perf_counter() - t0,
             interrupted=reason == INTERRUPTED)
         if keep_duals:
             res["duals"] = y_out
         return res
-
-    @staticmethod
-    def _collect(ws, frozen, slots, cols, out, y_out):
-        """Columns ``cols`` of ``out`` (n, k) (and of ``y_out`` (m, 3, k) unless None) from lanes
-        ``slots``: of the iterates frozen on the device, or with ``frozen`` False of the current ones."""
-        u, y = ("u_out", "y_out") if frozen else ("u", "y")
-        out[:, cols] = ws[u].numpy().reshape(out.shape[0], -1)[:, slots]
-        if y_out is not None:
-            y_out[:, :, cols] = ws[y].numpy().reshape(y_out.shape[0], 3, -1)[:, :, slots]
 
     def _project_gradient(self, u):
         """z = Proj_{|.|<=1}(G u) per element and column: (n, k) -> (m, 3, k)."""
@@ -491,198 +475,8 @@ class _SolverCopy:
         self.solver = DistanceSolver(device="cpu", workers=1, **arguments)
 
     def solve(self, sets, W, settings, start, keep_duals, schedule):
-        """The batched ADMM of ``sets`` at lane width W under the caller's ``tolerances`` settings."""
-        with tolerances.override(**settings):
-            return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False, start, keep_duals,
-                                     schedule)
+        """The batched ADMM of ``sets`` at lane width W under the caller's ``settings`` (a Tolerances)."""
+        return self.solver._admm(sets, self.solver._workspace(W, -(-len(sets) // W)), False, start, keep_duals,
+                                 schedule, settings)
 
 
-def _lanes(values, nb, W):
-    """(..., k) host values -> (..., nb, W) lane layout, zero-padded to nb W columns."""
-    padded = np.zeros(values.shape[:-1] + (nb * W,))
-    padded[..., :values.shape[-1]] = values
-    return padded.reshape(values.shape[:-1] + (nb, W))
-
-
-def _max_ratio(a, b):
-    """max(a / b) over the entries with b > 0 (a column made of sources only has a = b = 0)."""
-    return float(np.max(np.divide(a, b, out=np.zeros_like(a), where=b > 0), initial=0.0))
-
-
-class _BatchIterations:
-    """One batched single-source ADMM as the problem of :func:`~warp_regdist.admm.run_iterations`.
-
-    ``status`` reads the device's per-lane flags, collects the columns whose test first held
-    (frozen on the device at that iterate) and reports progress; ``advance`` compacts the batch
-    when columns left it, then runs iterations with the schedule's penalties (written one
-    iteration ahead into the device's table, which the device's test reads).
-    """
-
-    def __init__(self, solver, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0):
-        n, m = solver.mesh.n_vertices, solver.mesh.n_elements
-        self.solver, self.ws, self.batch, self.slot_col = solver, ws, batch, slot_col
-        self.schedule, self.offset, self.verbose, self.t0 = schedule, offset, verbose, t0
-        self.iterations = np.full(k, -1)
-        self.out = np.zeros((n, k))
-        self.y_out = np.zeros((m, 3, k)) if keep_duals else None
-        self.r_out, self.s_out, self.rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
-        self.compact_due = False
-        self.system_rho = None
-        self.last_print = t0
-        self.rho_table = ws["rho_table"].numpy() if solver.device.is_cpu else np.zeros(_RHO_TABLE)
-        self.penalty_ahead(0)
-        batch.check()
-
-    def penalty_ahead(self, it):
-        """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
-        self.rho_table[it % _RHO_TABLE] = self.schedule.rho(it + self.offset)
-        if not self.solver.device.is_cpu:
-            self.ws["rho_table"].assign(self.rho_table)
-
-    def status(self, it):
-        """Collect the columns done by iteration ``it``; True when all are."""
-        W, slot_col = self.batch.W, self.slot_col
-        state = self.ws["lane"].numpy().reshape(LANE_ROWS, -1)
-        live = self.batch.blocks * W
-        new = np.flatnonzero((state[DONE, :live] > 0) & (slot_col[:live] >= 0))
-        if new.size:  # each column as frozen at the iterate that met its stopping test
-            cols = slot_col[new]
-            self.iterations[cols] = state[IT_OUT, new]
-            self.solver._collect(self.ws, True, new, cols, self.out, self.y_out)
-            self.r_out[cols], self.s_out[cols] = state[R_OUT, new], state[S_OUT, new]
-            self.rho_out[cols] = state[RHO_OUT, new]
-            slot_col[new] = -1
-        self.compact_due = new.size > 0
-        if self.verbose and (time.perf_counter() - self.last_print > 2.0):
-            self.last_print = time.perf_counter()
-            print(f"  ADMM iteration {it}: {np.count_nonzero(self.iterations >= 0)}/{self.iterations.size} converged, "
-                  f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
-                  f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {self.last_print - self.t0:.1f} s",
-                  file=sys.stderr)
-        return bool(np.all(self.iterations >= 0))
-
-    def advance(self, it, count):
-        """Iterations it .. it + count - 1 (after moving the running columns into fewer blocks)."""
-        if self.compact_due:
-            self.batch.compact(self.slot_col)
-            self.compact_due = False
-        sv = self.solver
-        for j in range(it, it + count):
-            rho = self.schedule.rho(j + self.offset)
-            if not sv._scaled and rho != self.system_rho:
-                self.system_rho = rho
-                self.ws["pcg"].set_matrix(sv.regularizer.system(rho))
-            self.penalty_ahead(j + 1)
-            self.batch.iterate()
-
-
-class _ColumnBatch:
-    """The ADMM iteration of one batch as recorded launches over its first ``blocks`` column blocks,
-    on the CPU captured as one Warp graph (the u-step's CG loop a ``wp.capture_while``).
-
-    :meth:`iterate` runs iteration it: the u-step (right-hand side, PCG), the element step,
-    it += 1, then the top of iteration it + 1: the divergences, the change test, the stopping
-    test with the next penalty and CG tolerances, and the freezing of the lanes whose test
-    first held (kernels/admm.py). :meth:`check` runs that top alone (iteration 0).
-
-    When columns converge, :meth:`compact` moves the columns still running into the freed
-    lanes of the first blocks and drops the emptied blocks from every launch, so a batch
-    costs about the sum of its columns' iterations rather than its slowest column's
-    iterations times the batch size.
-    """
-
-    def __init__(self, solver, ws, W, nb, window, settings):
-        self.solver, self.ws, self.W = solver, ws, W
-        self.window, self.settings = window, settings
-        self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
-        self.move = lane_kernels(solver.scalar, W).move_columns
-        self.capture = _CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
-        self._record(nb)
-
-    def _record(self, blocks):
-        """Record the launches over column blocks 0..blocks-1 (their arguments stay fixed for the
-        whole solve: rho, the tolerances and the counters live in device arrays) and capture them."""
-        sv, ws, kern = self.solver, self.ws, self.kernels
-        n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
-        dev = sv.device
-        span = thread_span(dev, blocks, ws["u"].shape[1])
-        self.blocks = blocks
-        pcg = ws["pcg"]
-        pcg.set_active_blocks(blocks)
-
-        def rec(kernel, dim, *args):
-            return wp.launch(kernel, dim, device=dev, record_cmd=True, inputs=list(args))
-
-        elem_dim, vert_dim = row_dim(m, span, blocks), row_dim(n, span, blocks)
-        st = self.settings
-        self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws["mask"], ws["Dy"], ws["Dz"], ws["rho"],
-                          sc(st["shift"]), sc(st["scale"]), ws["rhs"], *span, n)
-        self.after_u = [
-            rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws["u"], ws["rho"],
-                sc(tolerances.relaxation), ws["z"], ws["y"], ws["acc"], *span, m),
-            rec(kern.advance, 1, ws["step"], pcg.counters)]
-        self.top = [
-            rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws["mask"],
-                ws["y"], ws["z"], ws["Dy"], ws["Dz"], ws["acc"], *span, n),
-            rec(kern.change_measure, vert_dim, ws["u"], ws["snapshot"], ws["step"], self.window, ws["lane"], *span, n),
-            rec(kern.admm_check, blocks, ws["acc"], ws["lane"], ws["rho"], ws["step"], ws["rho_table"], self.window,
-                *(sc(st[key]) for key in ("eps_pri_abs", "eps_rel", "eps_rel_dual", "eps_change", "cg_fraction",
-                                          "cg_primal", "alpha", "shift", "scale", "length")), pcg.atol2),
-            rec(kern.freeze_lanes, vert_dim, ws["lane"], ws["u"], ws["u_out"], *span, n)]
-        if ws["y_out"] is not None:
-            y, y_out = (a.reshape((3 * m, a.shape[2])) for a in (ws["y"], ws["y_out"]))
-            self.top.append(rec(kern.freeze_lanes, row_dim(3 * m, span, blocks), ws["lane"], y, y_out, *span, 3 * m))
-        self.graph = None
-        if self.capture:
-            wp.capture_begin(dev, force_module_load=False)
-            try:
-                self._launch_iteration(pcg.capture_solve)
-            finally:
-                self.graph = wp.capture_end(dev)
-
-    def _launch_iteration(self, solve):
-        self.u_step.launch()
-        solve(self.ws["rhs"], self.ws["u"], self.ws["mask"])
-        for launch in self.after_u + self.top:
-            launch.launch()
-
-    def check(self):
-        """The top of the current iteration alone (divergences, change and stopping tests, freezing)."""
-        for launch in self.top:
-            launch.launch()
-
-    def iterate(self):
-        """One iteration and the top of the next (the graph's replay on the CPU)."""
-        if self.graph is not None:
-            wp.capture_launch(self.graph)
-        else:
-            self._launch_iteration(self.ws["pcg"].run)
-
-    def compact(self, slot_col):
-        """Move running columns out of the last blocks when they fit in fewer.
-
-        ``slot_col`` (slots,) maps slot -> column (-1: free); it is permuted in place like the
-        device state (iterates, mask, D y, D z, change-test snapshot, per-lane test state, CG tolerances).
-        """
-        W, live = self.W, self.blocks * self.W
-        running = np.flatnonzero(slot_col[:live] >= 0)
-        blocks = max(1, -(-running.size // W))
-        if blocks == self.blocks:
-            return
-        keep = blocks * W
-        src = running[running >= keep]
-        dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
-        if src.size:
-            sv, ws = self.solver, self.ws
-            dev, span = sv.device, thread_span(sv.device)
-            s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
-            d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
-            nb = ws["u"].shape[1]
-            # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
-            # and the CG tolerances that the last test set for the next u-step
-            for a in [ws[name] for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "lane")] + [ws["pcg"].atol2]:
-                a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
-                wp.launch(self.move, row_dim(a2.shape[0], span), device=dev,
-                          inputs=[a2, s_arr, d_arr, src.size, span[0], a2.shape[0]])
-            slot_col[dst], slot_col[src] = slot_col[src], -1
-        self._record(blocks)

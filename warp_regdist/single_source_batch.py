@@ -1,0 +1,273 @@
+"""One batched single-source ADMM on the device (Algorithm 1; docs/method.md sections 4 and 8):
+its arrays (:class:`Workspace`), the stopping rule's constants the device test reads
+(:class:`DeviceRule`), the iteration as recorded launches replayed as one Warp graph
+(:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.admm.run_iterations`
+(:class:`BatchIterations`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+import numpy as np
+import warp as wp
+
+from .kernels.admm import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
+                           admm_kernels)
+from .kernels.lanes import lane_kernels, row_dim, thread_span
+
+__all__ = ["Workspace", "DeviceRule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
+
+CAPTURE = True
+"""On the CPU, replay each batch's iteration as one captured Warp graph (False: the same recorded
+launches one by one, the host reading the CG loop's flag; the same numbers)."""
+
+RHO_TABLE = 64
+"""Entries of the device's penalty table rho_table (iteration it at it % RHO_TABLE; the host writes
+each iteration's entry just before the replay that reads it)."""
+
+
+@dataclasses.dataclass
+class Workspace:
+    """The device arrays of a batch of nb blocks of W lanes: (n, nb) per vertex, (m, 3, nb) per
+    element, (nb,) or (rows, nb) per lane; the device-resident stopping test keeps u at the last
+    change test (snapshot), the per-lane test state (lane), the iterates frozen when a lane's test
+    first held (u_out, y_out), the counters (step) and the penalty table (rho_table)."""
+
+    width: int
+    u: wp.array
+    mask: wp.array
+    Dy: wp.array
+    Dz: wp.array
+    rhs: wp.array
+    z: wp.array
+    y: wp.array
+    rho: wp.array
+    acc: wp.array
+    snapshot: wp.array
+    u_out: wp.array
+    lane: wp.array
+    step: wp.array
+    rho_table: wp.array
+    pcg: object
+    y_out: wp.array | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceRule:
+    """The constants of the device's stopping test and CG tolerance rule (kernels/admm.py
+    ``admm_check``), in the order of its arguments: r <= eps_pri_abs + eps_rel max(|G u|, |z|),
+    s <= eps_dual_abs + eps_rel_dual max(|D y|, |A_V|), the change test eps_change, the CG
+    tolerance min(cg_fraction dual scale, eps_dual / 10, cg_primal r (alpha + rho)) / (shift + scale rho),
+    the penalty reported in units of ``length``."""
+
+    eps_pri_abs: float
+    eps_rel: float
+    eps_rel_dual: float
+    eps_change: float
+    cg_fraction: float
+    cg_primal: float
+    alpha: float
+    shift: float
+    scale: float
+    length: float
+
+
+def collect(ws, frozen, slots, cols, out, y_out):
+    """Columns ``cols`` of ``out`` (n, k) (and of ``y_out`` (m, 3, k) unless None) from lanes
+    ``slots``: of the iterates frozen on the device, or with ``frozen`` False of the current ones."""
+    u, y = (ws.u_out, ws.y_out) if frozen else (ws.u, ws.y)
+    out[:, cols] = u.numpy().reshape(out.shape[0], -1)[:, slots]
+    if y_out is not None:
+        y_out[:, :, cols] = y.numpy().reshape(y_out.shape[0], 3, -1)[:, :, slots]
+
+
+def lanes(values, nb, W):
+    """(..., k) host values -> (..., nb, W) lane layout, zero-padded to nb W columns."""
+    padded = np.zeros(values.shape[:-1] + (nb * W,))
+    padded[..., :values.shape[-1]] = values
+    return padded.reshape(values.shape[:-1] + (nb, W))
+
+
+def _max_ratio(a, b):
+    """max(a / b) over the entries with b > 0 (a column made of sources only has a = b = 0)."""
+    return float(np.max(np.divide(a, b, out=np.zeros_like(a), where=b > 0), initial=0.0))
+
+
+class BatchIterations:
+    """One batched single-source ADMM as the problem of :func:`~warp_regdist.admm.run_iterations`.
+
+    ``status`` reads the device's per-lane flags, collects the columns whose test first held
+    (frozen on the device at that iterate) and reports progress; ``advance`` compacts the batch
+    when columns left it, then runs iterations with the schedule's penalties (written one
+    iteration ahead into the device's table, which the device's test reads).
+    """
+
+    def __init__(self, solver, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0):
+        n, m = solver.mesh.n_vertices, solver.mesh.n_elements
+        self.solver, self.ws, self.batch, self.slot_col = solver, ws, batch, slot_col
+        self.schedule, self.offset, self.verbose, self.t0 = schedule, offset, verbose, t0
+        self.iterations = np.full(k, -1)
+        self.out = np.zeros((n, k))
+        self.y_out = np.zeros((m, 3, k)) if keep_duals else None
+        self.r_out, self.s_out, self.rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
+        self.compact_due = False
+        self.system_rho = None
+        self.last_print = t0
+        self.rho_table = ws.rho_table.numpy() if solver.device.is_cpu else np.zeros(RHO_TABLE)
+        self.penalty_ahead(0)
+        batch.check()
+
+    def penalty_ahead(self, it):
+        """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
+        self.rho_table[it % RHO_TABLE] = self.schedule.rho(it + self.offset)
+        if not self.solver.device.is_cpu:
+            self.ws.rho_table.assign(self.rho_table)
+
+    def status(self, it):
+        """Collect the columns done by iteration ``it``; True when all are."""
+        W, slot_col = self.batch.W, self.slot_col
+        state = self.ws.lane.numpy().reshape(LANE_ROWS, -1)
+        live = self.batch.blocks * W
+        new = np.flatnonzero((state[DONE, :live] > 0) & (slot_col[:live] >= 0))
+        if new.size:  # each column as frozen at the iterate that met its stopping test
+            cols = slot_col[new]
+            self.iterations[cols] = state[IT_OUT, new]
+            collect(self.ws, True, new, cols, self.out, self.y_out)
+            self.r_out[cols], self.s_out[cols] = state[R_OUT, new], state[S_OUT, new]
+            self.rho_out[cols] = state[RHO_OUT, new]
+            slot_col[new] = -1
+        self.compact_due = new.size > 0
+        if self.verbose and (time.perf_counter() - self.last_print > 2.0):
+            self.last_print = time.perf_counter()
+            print(f"  ADMM iteration {it}: {np.count_nonzero(self.iterations >= 0)}/{self.iterations.size} converged, "
+                  f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
+                  f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {self.last_print - self.t0:.1f} s",
+                  file=sys.stderr)
+        return bool(np.all(self.iterations >= 0))
+
+    def advance(self, it, count):
+        """Iterations it .. it + count - 1 (after moving the running columns into fewer blocks)."""
+        if self.compact_due:
+            self.batch.compact(self.slot_col)
+            self.compact_due = False
+        sv = self.solver
+        for j in range(it, it + count):
+            rho = self.schedule.rho(j + self.offset)
+            if not sv._scaled and rho != self.system_rho:
+                self.system_rho = rho
+                self.ws.pcg.set_matrix(sv.regularizer.system(rho))
+            self.penalty_ahead(j + 1)
+            self.batch.iterate()
+
+
+class ColumnBatch:
+    """The ADMM iteration of one batch as recorded launches over its first ``blocks`` column blocks,
+    on the CPU captured as one Warp graph (the u-step's CG loop a ``wp.capture_while``).
+
+    :meth:`iterate` runs iteration it: the u-step (right-hand side, PCG), the element step,
+    it += 1, then the top of iteration it + 1: the divergences, the change test, the stopping
+    test with the next penalty and CG tolerances, and the freezing of the lanes whose test
+    first held (kernels/admm.py). :meth:`check` runs that top alone (iteration 0).
+
+    When columns converge, :meth:`compact` moves the columns still running into the freed
+    lanes of the first blocks and drops the emptied blocks from every launch, so a batch
+    costs about the sum of its columns' iterations rather than its slowest column's
+    iterations times the batch size.
+    """
+
+    def __init__(self, solver, ws, W, nb, window, rule, relaxation):
+        self.solver, self.ws, self.W = solver, ws, W
+        self.window, self.rule, self.relaxation = window, rule, relaxation
+        self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
+        self.move = lane_kernels(solver.scalar, W).move_columns
+        self.capture = CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
+        self._record(nb)
+
+    def _record(self, blocks):
+        """Record the launches over column blocks 0..blocks-1 (their arguments stay fixed for the
+        whole solve: rho, the tolerances and the counters live in device arrays) and capture them."""
+        sv, ws, kern = self.solver, self.ws, self.kernels
+        n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
+        dev = sv.device
+        span = thread_span(dev, blocks, ws.u.shape[1])
+        self.blocks = blocks
+        pcg = ws.pcg
+        pcg.set_active_blocks(blocks)
+
+        def rec(kernel, dim, *args):
+            return wp.launch(kernel, dim, device=dev, record_cmd=True, inputs=list(args))
+
+        elem_dim, vert_dim = row_dim(m, span, blocks), row_dim(n, span, blocks)
+        rule = self.rule
+        self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws.mask, ws.Dy, ws.Dz, ws.rho,
+                          sc(rule.shift), sc(rule.scale), ws.rhs, *span, n)
+        self.after_u = [
+            rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws.u, ws.rho,
+                sc(self.relaxation), ws.z, ws.y, ws.acc, *span, m),
+            rec(kern.advance, 1, ws.step, pcg.counters)]
+        self.top = [
+            rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws.mask,
+                ws.y, ws.z, ws.Dy, ws.Dz, ws.acc, *span, n),
+            rec(kern.change_measure, vert_dim, ws.u, ws.snapshot, ws.step, self.window, ws.lane, *span, n),
+            rec(kern.admm_check, blocks, ws.acc, ws.lane, ws.rho, ws.step, ws.rho_table, self.window,
+                *(sc(value) for value in dataclasses.astuple(rule)), pcg.atol2),
+            rec(kern.freeze_lanes, vert_dim, ws.lane, ws.u, ws.u_out, *span, n)]
+        if ws.y_out is not None:
+            y, y_out = (a.reshape((3 * m, a.shape[2])) for a in (ws.y, ws.y_out))
+            self.top.append(rec(kern.freeze_lanes, row_dim(3 * m, span, blocks), ws.lane, y, y_out, *span, 3 * m))
+        self.graph = None
+        if self.capture:
+            wp.capture_begin(dev, force_module_load=False)
+            try:
+                self._launch_iteration(pcg.capture_solve)
+            finally:
+                self.graph = wp.capture_end(dev)
+
+    def _launch_iteration(self, solve):
+        self.u_step.launch()
+        solve(self.ws.rhs, self.ws.u, self.ws.mask)
+        for launch in self.after_u + self.top:
+            launch.launch()
+
+    def check(self):
+        """The top of the current iteration alone (divergences, change and stopping tests, freezing)."""
+        for launch in self.top:
+            launch.launch()
+
+    def iterate(self):
+        """One iteration and the top of the next (the graph's replay on the CPU)."""
+        if self.graph is not None:
+            wp.capture_launch(self.graph)
+        else:
+            self._launch_iteration(self.ws.pcg.run)
+
+    def compact(self, slot_col):
+        """Move running columns out of the last blocks when they fit in fewer.
+
+        ``slot_col`` (slots,) maps slot -> column (-1: free); it is permuted in place like the
+        device state (iterates, mask, D y, D z, change-test snapshot, per-lane test state, CG tolerances).
+        """
+        W, live = self.W, self.blocks * self.W
+        running = np.flatnonzero(slot_col[:live] >= 0)
+        blocks = max(1, -(-running.size // W))
+        if blocks == self.blocks:
+            return
+        keep = blocks * W
+        src = running[running >= keep]
+        dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
+        if src.size:
+            sv, ws = self.solver, self.ws
+            dev, span = sv.device, thread_span(sv.device)
+            s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
+            d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
+            nb = ws.u.shape[1]
+            # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
+            # and the CG tolerances that the last test set for the next u-step
+            for a in [getattr(ws, name) for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "lane")] + [ws.pcg.atol2]:
+                a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
+                wp.launch(self.move, row_dim(a2.shape[0], span), device=dev,
+                          inputs=[a2, s_arr, d_arr, src.size, span[0], a2.shape[0]])
+            slot_col[dst], slot_col[src] = slot_col[src], -1
+        self._record(blocks)
