@@ -18,7 +18,7 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from conftest import TIGHT
-from warp_regdist.admm import ChangeTest, ExtrapolatedChangeTest
+from warp_regdist.stopping import ChangeTest, ExtrapolatedChangeTest
 from warp_regdist import PenaltySchedule
 
 PAIRS = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")

@@ -1,4 +1,5 @@
-"""Error at the default stop against exact minimizers on irregular meshes (issue 13).
+"""The stopping rule: the error at the default stop against exact minimizers on irregular meshes, and the
+device's test against warp_regdist.stopping.
 
 tests/data/stopping_cat80.npz: cat_rr quadric-decimated to 80 vertices (fast-simplification
 0.2, target_reduction 1 - 80/1949: angles from 3.8 to 171 degrees) and the exact all-pairs
@@ -64,3 +65,47 @@ def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
     res = wrd.DistanceSolver(mesh, alpha_hat, device=device).solve([0])
     assert res.converged
     assert _error(res.distance, exact) <= 5e-3
+
+
+def test_device_test_is_the_stopping_module_on_the_same_inputs():
+    """kernels/admm.py admm_check against warp_regdist.stopping on random sums: the primal and
+    dual tolerances with their floors, the dual scale and the CG tolerance, lane by lane
+    (four lanes, float64, at an iteration > 0 and with a primal term that binds in some lanes)."""
+    import warp as wp
+
+    from warp_regdist import stopping
+    from warp_regdist.kernels.admm import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
+                                           admm_kernels)
+    from warp_regdist.kernels.lanes import DY2, G2, R2, Z2
+
+    kern = admm_kernels(wp.float64, 4, 3)
+    rng = np.random.default_rng(7)
+    sums = rng.random((5, 4)) * np.array([[1e-6], [1e-4], [1.0], [1.0], [1e-2]])
+    sums[DY2, 0] = 0.0  # a lane whose duals vanish: the load floors its scale
+    lane_rows = np.zeros((LANE_ROWS, 4))
+    lane_rows[EPS_DUAL_ABS], lane_rows[LOAD_NORM] = rng.random(4) * 1e-7, rng.random(4) * 0.05
+    rho_old, rho_new, window = rng.random(4) + 0.5, 1.7, 10
+    eps_pri_abs, eps_rel, eps_rel_dual, cg_fraction, cg_primal, alpha, shift, scale = (
+        2e-6, 1e-3, 0.5, 1e-3, 0.01, 0.3, 0.3, 1.0)
+    acc = wp.array(sums.reshape(5, 1, 4), dtype=kern.V, device="cpu")
+    lane = wp.array(lane_rows.reshape(LANE_ROWS, 1, 4), dtype=kern.V, device="cpu")
+    rho = wp.array(rho_old.reshape(1, 4), dtype=kern.V, device="cpu")
+    step = wp.array(np.array([3, 0], dtype=np.int32), dtype=wp.int32, device="cpu")
+    table, atol2 = wp.full(4, rho_new, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=kern.V, device="cpu")
+    wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]
+              + [wp.float64(x) for x in (eps_pri_abs, eps_rel, eps_rel_dual, 1e-3, cg_fraction, cg_primal, alpha,
+                                         shift, scale, 1.0)] + [atol2])
+    out = lane.numpy().reshape(LANE_ROWS, 4)
+    r = np.sqrt(sums[R2])
+    eps_pri = stopping.tolerance(eps_pri_abs, eps_rel, np.sqrt(np.maximum(sums[G2], sums[Z2])))
+    dy = stopping.dual_scale(np.sqrt(sums[DY2]), lane_rows[LOAD_NORM])
+    eps_dual = stopping.tolerance(lane_rows[EPS_DUAL_ABS], eps_rel_dual, dy)
+    den = shift + scale * rho_new
+    atol = stopping.cg_tolerance(cg_fraction, lane_rows[EPS_DUAL_ABS] + dy, eps_dual,
+                                 cg_primal * r * (alpha + rho_new)) / den
+    np.testing.assert_allclose(out[EPS_PRI], eps_pri, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(out[EPS_DUAL], eps_dual, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(out[DUAL_SCALE], lane_rows[EPS_DUAL_ABS] + dy, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(np.sqrt(atol2.numpy().ravel()), atol, rtol=1e-14, atol=0)
+    binds = cg_primal * r * (alpha + rho_new) < np.minimum(cg_fraction * (lane_rows[EPS_DUAL_ABS] + dy), 0.1 * eps_dual)
+    assert binds.any() and not binds.all()

@@ -4,11 +4,8 @@
 :func:`run_iterations` drives a problem that supplies ``status(it)`` (the tests of its iterate
 after ``it`` iterations, read from the device) and ``advance(it, count)`` (``count`` iterations
 on the device, ending with the device work of the next test). :class:`PenaltySchedule` is the
-penalty rho at iteration k; :class:`ChangeTest` and
-:class:`ExtrapolatedChangeTest` are the change tests that, besides the residual test, decide
-when a column (a source set, or the whole all-pairs matrix) stops (DistanceSolver runs
-ChangeTest's rule on the device, kernels/admm.py, checked against it by the tests). Both solvers build them
-from :data:`warp_regdist.tolerances` (overridable per call with ``tolerances.override``);
+penalty rho at iteration k; the stopping rule is :mod:`warp_regdist.stopping`. Both solvers build
+them from :data:`warp_regdist.tolerances` (overridable per call with ``tolerances.override``);
 ``DistanceSolver.solve``, ``solve_many`` and ``all_pairs`` take ``schedule=`` to swap the
 schedule for a :class:`PenaltySchedule` or any object with ``rho(k)`` and ``offset_for(penalty)``.
 """
@@ -23,8 +20,7 @@ import numpy as np
 from . import interrupt
 from .processes import check_workers
 
-__all__ = ["run_iterations", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule", "ChangeTest",
-           "ExtrapolatedChangeTest", "check_schedule"]
+__all__ = ["run_iterations", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule", "check_schedule"]
 
 CONVERGED, MAX_ITERATIONS, INTERRUPTED = "converged", "max_iterations", "interrupted"
 """Why :func:`run_iterations` stopped."""
@@ -113,102 +109,3 @@ def check_schedule(schedule):
         raise ValueError(f"expected schedule as a PenaltySchedule or an object with rho(k) and offset_for(penalty), "
                          f"got {type(schedule).__name__}")
     return schedule
-
-
-class ChangeTest:
-    """Per column: every ``window`` iterations u_k is compared with u_(k - window); a column is
-    settled while the last comparison moved it by at most eps max|u_k|:
-    max_i |u_k - u_(k - window)| <= eps max_i |u_k| (or not at all; eps = inf: no change test,
-    settled at every comparison of a nonzero u).
-
-    Holds ``snapshot`` (rows, columns), the u of the last comparison (``reset``'s dtype, else
-    the first ``update``'s), and ``settled`` (columns,) bool. Before ``reset`` the first
-    ``update`` only records u.
-    """
-
-    def __init__(self, window, eps, columns):
-        if not (isinstance(window, (int, np.integer)) and window >= 1):
-            raise ValueError(f"expected a change-test window as an integer >= 1, got {window!r}")
-        self.window, self.eps = int(window), float(eps)  # a Python float keeps float32 columns in float32
-        self.snapshot = None
-        self.settled = np.zeros(columns, dtype=bool)
-
-    def due(self, k):
-        """Whether iteration k compares (every ``window`` iterations)."""
-        return k % self.window == 0
-
-    def reset(self, u0):
-        """Start from u0 (rows, columns), e.g. zeros or a warm start's u: the next ``update`` compares with it."""
-        self.snapshot = np.array(u0)
-        self._unsettle()
-
-    def update(self, u):
-        """Compare the first c columns with ``u`` (rows, c) host values, record u; returns settled[:c]."""
-        c = u.shape[1]
-        if self.snapshot is None:
-            self.snapshot = np.zeros((u.shape[0], self.settled.size), dtype=u.dtype)
-        else:
-            self._judge(np.abs(u - self.snapshot[:, :c]).max(axis=0), u)
-        self.snapshot[:, :c] = u
-        return self.settled[:c]
-
-    def _judge(self, moved, u):
-        """settled[:c] from moved = max |u - snapshot| per column (c,)."""
-        with np.errstate(invalid="ignore"):  # eps = inf times max |u| = 0
-            self.settled[:moved.size] = (moved == 0) | (moved <= self.eps * np.abs(u).max(axis=0))
-
-    def _unsettle(self):
-        self.settled[:] = False
-
-    def state(self):
-        """The test's state as a dict of arrays: ``snapshot`` itself (None before any update; not
-        a copy, it can be as large as the all-pairs matrix) and copies of the per-column flags."""
-        return dict(snapshot=self.snapshot, settled=self.settled.copy())
-
-    def restore(self, state):
-        """The state of :meth:`state` back; the test takes ``snapshot`` over (updates write into it)."""
-        self.snapshot = state["snapshot"]
-        self.settled[:] = state["settled"]
-
-
-class ExtrapolatedChangeTest(ChangeTest):
-    """Per column, with c_k = max_i |u_k - u_(k - window)| / max(max_i u_k, 1e-300) (u >= 0):
-    settled while change = c_k / (1 - c_k / c_(k - window)) <= eps, the change still to come
-    if u keeps converging at the rate of the last two windows (the rest of a geometric
-    series). change is inf before the third comparison (the first only records u) and while
-    c grows, 0 once u stops moving. eps = inf: always settled.
-
-    Holds ``window_change`` (c of the last comparison) and ``change`` (columns,) besides
-    ``snapshot`` and ``settled``.
-    """
-
-    def __init__(self, window, eps, columns):
-        self.window_change = np.full(columns, math.inf)
-        self.change = np.full(columns, math.inf)
-        super().__init__(window, eps, columns)
-        self._unsettle()
-
-    def _judge(self, moved, u):
-        top = u.max(axis=0)
-        for j in range(moved.size):
-            c = float(moved[j] / max(top[j], 1e-300))
-            before = self.window_change[j]
-            if c < before < math.inf:
-                self.change[j] = c / (1.0 - c / before)
-            else:  # u did not move, the first comparison, or a change that grows
-                self.change[j] = 0.0 if c == 0.0 else math.inf
-            self.window_change[j] = c
-        self.settled[:moved.size] = self.change[:moved.size] <= self.eps
-
-    def _unsettle(self):
-        self.window_change[:] = self.change[:] = math.inf
-        self.settled[:] = self.change <= self.eps
-
-    def state(self):
-        return dict(snapshot=self.snapshot, window_change=self.window_change.copy(), change=self.change.copy())
-
-    def restore(self, state):
-        self.snapshot = state["snapshot"]
-        self.window_change[:] = state["window_change"]
-        self.change[:] = state["change"]
-        self.settled[:] = self.change <= self.eps

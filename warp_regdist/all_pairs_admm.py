@@ -54,7 +54,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from . import interrupt
-from .admm import CONVERGED, INTERRUPTED, ExtrapolatedChangeTest, PenaltySchedule, check_schedule, run_iterations
+from .admm import CONVERGED, INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, problem_fingerprint, read_checkpoint
 from .all_pairs_state import STATE_ROWS, SymmetricADMM, check_memory
 from .arguments import check_weight, parse_device, parse_workers
@@ -62,6 +62,7 @@ from .errors import ConvergenceWarning
 from .file_lock import FileLock
 from .kernels.all_pairs import H2, RX2, SX2, U2, X2
 from .kernels.lanes import SCALARS
+from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
 from .mesh import Mesh
 from .tolerances import tolerances
 
@@ -359,11 +360,12 @@ class _Run:
         s1 = rho_old * math.sqrt((w * w) @ self.s2)
         rx = math.sqrt(pairs[RX2])
         sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
-        eps_p = tol.eps_abs * math.sqrt(3 * m) * A + self.eps_rel * math.sqrt(max(w @ cols[1], w @ cols[2]))
-        eps_d = tol.eps_abs * math.sqrt(n) * A * A + self.eps_rel_dual * max(math.sqrt((w * w) @ self.dy2),
-                                                                              self.load_norm)
-        eps_x = tol.eps_abs * math.sqrt(n) * A ** 1.5 + self.eps_rel_consensus * math.sqrt(min(pairs[X2], pairs[U2]))
-        eps_dx = tol.eps_abs * math.sqrt(n) * A + self.eps_rel_dual * max(math.sqrt(pairs[H2]), 0.5 * A)
+        eps_p = tolerance(tol.eps_abs * math.sqrt(3 * m) * A, self.eps_rel, math.sqrt(max(w @ cols[1], w @ cols[2])))
+        eps_d = tolerance(tol.eps_abs * math.sqrt(n) * A * A, self.eps_rel_dual,
+                          dual_scale(math.sqrt((w * w) @ self.dy2), self.load_norm))
+        eps_x = tolerance(tol.eps_abs * math.sqrt(n) * A ** 1.5, self.eps_rel_consensus,
+                          math.sqrt(min(pairs[X2], pairs[U2])))
+        eps_dx = tolerance(tol.eps_abs * math.sqrt(n) * A, self.eps_rel_dual, dual_scale(math.sqrt(pairs[H2]), 0.5 * A))
         self.res = res = np.array([r1, r1, s1, s1, rx, rx, sx])
         self.eps = eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
         self.history.append(res / np.maximum(eps, 1e-300))
@@ -381,7 +383,7 @@ class _Run:
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
         st, tol = self.state, tolerances
         for j in range(it, it + count):
-            atol = self.cg_fraction * (np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
+            atol = cg_tolerance(self.cg_fraction, np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
             self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
             self.last_penalties = st.penalties
             self.cols, self.pairs = st.consensus()

@@ -41,6 +41,7 @@ from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .arguments import check_weight, parse_device, parse_workers
 from .errors import ConvergenceWarning
 from .regularizers import build_regularizer
+from .stopping import tolerance
 from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, DeviceRule, Workspace, collect, lanes
 from .tolerances import tolerances
 
@@ -426,7 +427,7 @@ class DistanceSolver:
         load_norm = np.sqrt(np.square(self.operators.vertex_volumes) @ free)
         lane = np.zeros((LANE_ROWS, nb * W))
         lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
-        lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, eps_dual_abs + eps_rel_dual * load_norm
+        lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, tolerance(eps_dual_abs, eps_rel_dual, load_norm)
         ws.lane.assign(lane.reshape(LANE_ROWS, nb, W))
         ws.pcg.configure(tol.cg_rtol, tol.cg_max_iterations)
         rule = DeviceRule(

@@ -1,0 +1,139 @@
+"""The stopping rule both solvers use (docs/method.md section 8): relative tolerances with their
+floors, the change tests, and the u-step's CG tolerance.
+
+Every residual test has the form  residual <= floor + eps_rel scale  (:func:`tolerance`), the
+scale being the larger of the iterate's own size and a floor that does not vanish where the
+duals do (:func:`dual_scale`): a test relative to |D y| alone never holds where no gradient
+constraint is active. A column (a source set, or the all-pairs matrix as one column) also
+waits for its change test: :class:`ChangeTest` (single sources: the change of the last
+window) or :class:`ExtrapolatedChangeTest` (all pairs: the change still to come at the rate of
+the last two windows). The u-step's PCG stops at :func:`cg_tolerance`.
+
+DistanceSolver runs this rule on the device (kernels/admm.py ``change_measure`` and
+``admm_check``, with the constants of ``single_source_batch.DeviceRule``); the tests run the
+kernel and these functions on the same inputs. all_pairs runs it on the host.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["tolerance", "dual_scale", "cg_tolerance", "ChangeTest", "ExtrapolatedChangeTest"]
+
+
+def tolerance(floor, eps_rel, scale):
+    """floor + eps_rel scale: a residual's tolerance (scalars or arrays)."""
+    return floor + eps_rel * scale
+
+
+def dual_scale(dual_norm, load_norm):
+    """max(|D y|, |load|): the scale of the dual residual, floored by the load the duals balance."""
+    return np.maximum(dual_norm, load_norm)
+
+
+def cg_tolerance(cg_fraction, scale, eps_dual=math.inf, primal_term=math.inf):
+    """min(cg_fraction scale, eps_dual / 10, primal_term): the u-step's absolute CG tolerance (before
+    the division by the u-step matrix's shift + scale rho). Single sources pass their dual
+    tolerance and cg_primal r (alpha + rho); all pairs only the scale."""
+    return np.minimum(np.minimum(cg_fraction * scale, 0.1 * eps_dual), primal_term)
+
+
+class ChangeTest:
+    """Per column: every ``window`` iterations u_k is compared with u_(k - window); a column is
+    settled while the last comparison moved it by at most eps max|u_k|:
+    max_i |u_k - u_(k - window)| <= eps max_i |u_k| (or not at all; eps = inf: no change test,
+    settled at every comparison of a nonzero u).
+
+    Holds ``snapshot`` (rows, columns), the u of the last comparison (``reset``'s dtype, else
+    the first ``update``'s), and ``settled`` (columns,) bool. Before ``reset`` the first
+    ``update`` only records u.
+    """
+
+    def __init__(self, window, eps, columns):
+        if not (isinstance(window, (int, np.integer)) and window >= 1):
+            raise ValueError(f"expected a change-test window as an integer >= 1, got {window!r}")
+        self.window, self.eps = int(window), float(eps)  # a Python float keeps float32 columns in float32
+        self.snapshot = None
+        self.settled = np.zeros(columns, dtype=bool)
+
+    def due(self, k):
+        """Whether iteration k compares (every ``window`` iterations)."""
+        return k % self.window == 0
+
+    def reset(self, u0):
+        """Start from u0 (rows, columns), e.g. zeros or a warm start's u: the next ``update`` compares with it."""
+        self.snapshot = np.array(u0)
+        self._unsettle()
+
+    def update(self, u):
+        """Compare the first c columns with ``u`` (rows, c) host values, record u; returns settled[:c]."""
+        c = u.shape[1]
+        if self.snapshot is None:
+            self.snapshot = np.zeros((u.shape[0], self.settled.size), dtype=u.dtype)
+        else:
+            self._judge(np.abs(u - self.snapshot[:, :c]).max(axis=0), u)
+        self.snapshot[:, :c] = u
+        return self.settled[:c]
+
+    def _judge(self, moved, u):
+        """settled[:c] from moved = max |u - snapshot| per column (c,)."""
+        with np.errstate(invalid="ignore"):  # eps = inf times max |u| = 0
+            self.settled[:moved.size] = (moved == 0) | (moved <= self.eps * np.abs(u).max(axis=0))
+
+    def _unsettle(self):
+        self.settled[:] = False
+
+    def state(self):
+        """The test's state as a dict of arrays: ``snapshot`` itself (None before any update; not
+        a copy, it can be as large as the all-pairs matrix) and copies of the per-column flags."""
+        return dict(snapshot=self.snapshot, settled=self.settled.copy())
+
+    def restore(self, state):
+        """The state of :meth:`state` back; the test takes ``snapshot`` over (updates write into it)."""
+        self.snapshot = state["snapshot"]
+        self.settled[:] = state["settled"]
+
+
+class ExtrapolatedChangeTest(ChangeTest):
+    """Per column, with c_k = max_i |u_k - u_(k - window)| / max(max_i u_k, 1e-300) (u >= 0):
+    settled while change = c_k / (1 - c_k / c_(k - window)) <= eps, the change still to come
+    if u keeps converging at the rate of the last two windows (the rest of a geometric
+    series). change is inf before the third comparison (the first only records u) and while
+    c grows, 0 once u stops moving. eps = inf: always settled.
+
+    Holds ``window_change`` (c of the last comparison) and ``change`` (columns,) besides
+    ``snapshot`` and ``settled``.
+    """
+
+    def __init__(self, window, eps, columns):
+        self.window_change = np.full(columns, math.inf)
+        self.change = np.full(columns, math.inf)
+        super().__init__(window, eps, columns)
+        self._unsettle()
+
+    def _judge(self, moved, u):
+        top = u.max(axis=0)
+        for j in range(moved.size):
+            c = float(moved[j] / max(top[j], 1e-300))
+            before = self.window_change[j]
+            if c < before < math.inf:
+                self.change[j] = c / (1.0 - c / before)
+            else:  # u did not move, the first comparison, or a change that grows
+                self.change[j] = 0.0 if c == 0.0 else math.inf
+            self.window_change[j] = c
+        self.settled[:moved.size] = self.change[:moved.size] <= self.eps
+
+    def _unsettle(self):
+        self.window_change[:] = self.change[:] = math.inf
+        self.settled[:] = self.change <= self.eps
+
+    def state(self):
+        return dict(snapshot=self.snapshot, window_change=self.window_change.copy(), change=self.change.copy())
+
+    def restore(self, state):
+        self.snapshot = state["snapshot"]
+        self.window_change[:] = state["window_change"]
+        self.change[:] = state["change"]
+        self.settled[:] = self.change <= self.eps
