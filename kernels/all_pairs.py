@@ -36,7 +36,7 @@ def all_pairs_kernels(scalar, W):
     zero = scalar(0.0)
     half = scalar(0.5)
     f = lane_funcs(scalar, W)
-    element_gradient, ball_scale, norm2 = f.element_gradient, f.ball_scale, f.norm2
+    element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -63,10 +63,7 @@ def all_pairs_kernels(scalar, W):
                 ox = v[e, 0, b]
                 oy = v[e, 1, b]
                 oz = v[e, 2, b]
-                s = ball_scale(ox, oy, oz)
-                ox_z = wp.cw_mul(s, ox)
-                oy_z = wp.cw_mul(s, oy)
-                oz_z = wp.cw_mul(s, oz)
+                ox_z, oy_z, oz_z = project(ox, oy, oz)
                 k = rho_v / rho
                 vx = k * (ox - ox_z) + relaxation * gx + (one - relaxation) * ox_z
                 vy = k * (oy - oy_z) + relaxation * gy + (one - relaxation) * oy_z
@@ -74,19 +71,17 @@ def all_pairs_kernels(scalar, W):
                 v[e, 0, b] = vx
                 v[e, 1, b] = vy
                 v[e, 2, b] = vz
-                s = ball_scale(vx, vy, vz)
-                zx = wp.cw_mul(s, vx)
-                zy = wp.cw_mul(s, vy)
-                zz = wp.cw_mul(s, vz)
+                zx, zy, zz = project(vx, vy, vz)
                 a = vol[e]
                 for l in range(3):
                     w = a * basis[e, l]
                     dz = w[0] * zx + w[1] * zy + w[2] * zz
                     wp.atomic_add(DZ_acc, elements[e, l], b, dz)
                     wp.atomic_add(DY_acc, elements[e, l], b, rho * (w[0] * vx + w[1] * vy + w[2] * vz - dz))
-                r2 += a * norm2(gx - zx, gy - zy, gz - zz)
-                g2 += a * norm2(gx, gy, gz)
-                z2 += a * norm2(zx, zy, zz)
+                dr2, dg2, dz2 = element_sums(a, gx, gy, gz, zx, zy, zz)
+                r2 += dr2
+                g2 += dg2
+                z2 += dz2
             wp.atomic_add(acc, R2, b, r2)
             wp.atomic_add(acc, G2, b, g2)
             wp.atomic_add(acc, Z2, b, z2)

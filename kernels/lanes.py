@@ -99,7 +99,8 @@ def lane_kernels(scalar, W):
 
 @functools.cache
 def lane_funcs(scalar, W):
-    """Per-element functions on lane vectors shared by the ADMM kernel families."""
+    """The per-element core both ADMM kernel families share (single source, all pairs): the element
+    gradient, the projection onto the unit ball and the element's terms of the residual sums."""
     V = lane_type(scalar, W)
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_lanes_{scalar.__name__}_{W}")
@@ -133,4 +134,16 @@ def lane_funcs(scalar, W):
         """Per lane |(x, y, z)|^2."""
         return wp.cw_mul(x, x) + wp.cw_mul(y, y) + wp.cw_mul(z, z)
 
-    return types.SimpleNamespace(element_gradient=element_gradient, ball_scale=ball_scale, norm2=norm2)
+    @wp.func(module=module)
+    def project(vx: V, vy: V, vz: V):
+        """Per lane the projection of v onto the unit ball, v / max(1, |v|)."""
+        s = ball_scale(vx, vy, vz)
+        return wp.cw_mul(s, vx), wp.cw_mul(s, vy), wp.cw_mul(s, vz)
+
+    @wp.func(module=module)
+    def element_sums(a: scalar, gx: V, gy: V, gz: V, zx: V, zy: V, zz: V):
+        """Per lane the element's terms of the residual sums: a |g - z|^2, a |g|^2, a |z|^2 (rows R2, G2, Z2)."""
+        return a * norm2(gx - zx, gy - zy, gz - zz), a * norm2(gx, gy, gz), a * norm2(zx, zy, zz)
+
+    return types.SimpleNamespace(element_gradient=element_gradient, ball_scale=ball_scale, norm2=norm2,
+                                 project=project, element_sums=element_sums)

@@ -196,13 +196,13 @@ def test_all_pairs_swapped_schedule_and_pairs_rho0(bumpy42):
 
 
 def test_device_change_test_matches_the_host_rule():
-    """The solver's change test runs on the device (kernels/admm.py: change_measure, admm_check);
+    """The solver's change test runs on the device (kernels/single_source.py: change_measure, admm_check);
     ChangeTest is its host statement. Four lanes: fast and slow decay, a jump, zeros."""
     import warp as wp
-    from warp_regdist.kernels.admm import LANE_ROWS, SETTLED, admm_kernels
+    from warp_regdist.kernels.single_source import LANE_ROWS, SETTLED, single_source_kernels
     from warp_regdist.kernels.lanes import row_dim
 
-    kern = admm_kernels(wp.float64, 4, 3)
+    kern = single_source_kernels(wp.float64, 4, 3)
     V = kern.V
     n, window, eps = 40, 10, 0.02
     rng = np.random.default_rng(3)

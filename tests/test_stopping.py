@@ -68,17 +68,17 @@ def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
 
 
 def test_device_test_is_the_stopping_module_on_the_same_inputs():
-    """kernels/admm.py admm_check against warp_regdist.stopping on random sums: the primal and
+    """kernels/single_source.py admm_check against warp_regdist.stopping on random sums: the primal and
     dual tolerances with their floors, the dual scale and the CG tolerance, lane by lane
     (four lanes, float64, at an iteration > 0 and with a primal term that binds in some lanes)."""
     import warp as wp
 
     from warp_regdist import stopping
-    from warp_regdist.kernels.admm import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
-                                           admm_kernels)
+    from warp_regdist.kernels.single_source import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
+                                           single_source_kernels)
     from warp_regdist.kernels.lanes import DY2, G2, R2, Z2
 
-    kern = admm_kernels(wp.float64, 4, 3)
+    kern = single_source_kernels(wp.float64, 4, 3)
     rng = np.random.default_rng(7)
     sums = rng.random((5, 4)) * np.array([[1e-6], [1e-4], [1.0], [1.0], [1e-2]])
     sums[DY2, 0] = 0.0  # a lane whose duals vanish: the load floors its scale

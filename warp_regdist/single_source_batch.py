@@ -13,8 +13,8 @@ import time
 import numpy as np
 import warp as wp
 
-from .kernels.admm import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
-                           admm_kernels)
+from .kernels.single_source import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
+                           single_source_kernels)
 from .kernels.lanes import lane_kernels, row_dim, thread_span
 
 __all__ = ["Workspace", "DeviceRule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
@@ -56,7 +56,7 @@ class Workspace:
 
 @dataclasses.dataclass(frozen=True)
 class DeviceRule:
-    """The constants of the device's stopping test and CG tolerance rule (kernels/admm.py
+    """The constants of the device's stopping test and CG tolerance rule (kernels/single_source.py
     ``admm_check``), in the order of its arguments: r <= eps_pri_abs + eps_rel max(|G u|, |z|),
     s <= eps_dual_abs + eps_rel_dual max(|D y|, |A_V|), the change test eps_change, the CG
     tolerance min(cg_fraction dual scale, eps_dual / 10, cg_primal r (alpha + rho)) / (shift + scale rho),
@@ -169,7 +169,7 @@ class ColumnBatch:
     :meth:`iterate` runs iteration it: the u-step (right-hand side, PCG), the element step,
     it += 1, then the top of iteration it + 1: the divergences, the change test, the stopping
     test with the next penalty and CG tolerances, and the freezing of the lanes whose test
-    first held (kernels/admm.py). :meth:`check` runs that top alone (iteration 0).
+    first held (kernels/single_source.py). :meth:`check` runs that top alone (iteration 0).
 
     When columns converge, :meth:`compact` moves the columns still running into the freed
     lanes of the first blocks and drops the emptied blocks from every launch, so a batch
@@ -180,7 +180,7 @@ class ColumnBatch:
     def __init__(self, solver, ws, W, nb, window, rule, relaxation):
         self.solver, self.ws, self.W = solver, ws, W
         self.window, self.rule, self.relaxation = window, rule, relaxation
-        self.kernels = admm_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
+        self.kernels = single_source_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
         self.move = lane_kernels(solver.scalar, W).move_columns
         self.capture = CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
         self._record(nb)

@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 from scipy.optimize import OptimizeResult
 
-from .kernels.admm import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST, RHO_LAST,
+from .kernels.single_source import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST, RHO_LAST,
                            S_LAST)
 from .kernels.lanes import SCALARS, lane_type, lane_width
 from .mesh import Mesh
@@ -357,7 +357,7 @@ class DistanceSolver:
                 rhs=wp.zeros((n, nb), dtype=V, device=dev),
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
-                # the device-resident stopping test (kernels/admm.py): u at the last change test, the
+                # the device-resident stopping test (kernels/single_source.py): u at the last change test, the
                 # per-lane state, the iterates frozen when a lane's test first held, counters, penalties
                 snapshot=wp.zeros((n, nb), dtype=V, device=dev), u_out=wp.zeros((n, nb), dtype=V, device=dev),
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
@@ -373,7 +373,7 @@ class DistanceSolver:
         zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), with the
         penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``).
 
-        The stopping test, the penalty and the CG tolerances are decided on the device (kernels/admm.py);
+        The stopping test, the penalty and the CG tolerances are decided on the device (kernels/single_source.py);
         the host reads the per-lane flags every ``_CHECK_EVERY`` iterations to collect the columns done
         (frozen on the device at the iteration their test held) and to compact the batch.
         """

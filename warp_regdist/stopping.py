@@ -9,7 +9,7 @@ waits for its change test: :class:`ChangeTest` (single sources: the change of th
 window) or :class:`ExtrapolatedChangeTest` (all pairs: the change still to come at the rate of
 the last two windows). The u-step's PCG stops at :func:`cg_tolerance`.
 
-DistanceSolver runs this rule on the device (kernels/admm.py ``change_measure`` and
+DistanceSolver runs this rule on the device (kernels/single_source.py ``change_measure`` and
 ``admm_check``, with the constants of ``single_source_batch.DeviceRule``); the tests run the
 kernel and these functions on the same inputs. all_pairs runs it on the host.
 """

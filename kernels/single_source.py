@@ -1,4 +1,4 @@
-"""Per-element and per-vertex kernels of one ADMM iteration (docs/method.md section 4), column-batched,
+"""The single-source kernels: per-element and per-vertex steps of one ADMM iteration (docs/method.md section 4),
 and the stopping test, penalty and CG tolerances decided on the device (section 8).
 
 Shapes: u (n, nb); z, y (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
@@ -27,15 +27,15 @@ LANE_ROWS = 17
 
 
 @functools.cache
-def admm_kernels(scalar, W, k):
-    """ADMM kernels for lane vectors of W ``scalar`` values on elements with k vertices."""
+def single_source_kernels(scalar, W, k):
+    """Single-source ADMM kernels for lane vectors of W ``scalar`` values on elements with k vertices."""
     V = lane_type(scalar, W)
     V3 = wp.types.vector(3, scalar)
-    module = wp.get_module(f"warp_regdist_admm_{scalar.__name__}_{W}_{k}")
+    module = wp.get_module(f"warp_regdist_single_source_{scalar.__name__}_{W}_{k}")
     one = scalar(1.0)
     zero = scalar(0.0)
     f = lane_funcs(scalar, W)
-    element_gradient, ball_scale, norm2 = f.element_gradient, f.ball_scale, f.norm2
+    element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -67,20 +67,17 @@ def admm_kernels(scalar, W, k):
                 vx = wp.cw_div(y[e, 0, b], rb) + hx
                 vy = wp.cw_div(y[e, 1, b], rb) + hy
                 vz = wp.cw_div(y[e, 2, b], rb) + hz
-                s = ball_scale(vx, vy, vz)
-                zx = wp.cw_mul(s, vx)
-                zy = wp.cw_mul(s, vy)
-                zz = wp.cw_mul(s, vz)
+                zx, zy, zz = project(vx, vy, vz)
                 y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, hx - zx)
                 y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, hy - zy)
                 y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, hz - zz)
                 z[e, 0, b] = zx
                 z[e, 1, b] = zy
                 z[e, 2, b] = zz
-                a = vol[e]
-                r2 += a * norm2(gx - zx, gy - zy, gz - zz)
-                g2 += a * norm2(gx, gy, gz)
-                z2 += a * norm2(zx, zy, zz)
+                dr2, dg2, dz2 = element_sums(vol[e], gx, gy, gz, zx, zy, zz)
+                r2 += dr2
+                g2 += dg2
+                z2 += dz2
             wp.atomic_add(acc, R2, b, r2)
             wp.atomic_add(acc, G2, b, g2)
             wp.atomic_add(acc, Z2, b, z2)
