@@ -183,7 +183,7 @@ def bumpy42():
     return wrd.Mesh(d["vertices"], d["faces"]), d["U_01"]
 
 
-def test_all_pairs_swapped_schedule_and_pairs_rho0(bumpy42):
+def test_all_pairs_swapped_schedule_and_rho0(bumpy42):
     mesh, exact = bumpy42
     fast = PenaltySchedule(0.5, 4.0, 10.0, wrd.build_operators(mesh).length_scale)
     default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
@@ -191,8 +191,16 @@ def test_all_pairs_swapped_schedule_and_pairs_rho0(bumpy42):
     assert default.converged and swapped.converged and swapped.iterations != default.iterations
     assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
     assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
-    with wrd.tolerances.override(pairs_rho0=1.0):
-        assert wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4).iterations != default.iterations
+    with wrd.tolerances.override(rho0=1.0):
+        started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
+    assert started.iterations != default.iterations
+    with pytest.warns(DeprecationWarning, match=r"tolerances\.pairs_rho0 is tolerances\.rho0, shared by both solvers"):
+        with wrd.tolerances.override(pairs_rho0=1.0):
+            renamed = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
+            assert wrd.tolerances.rho0 == 1.0
+    assert renamed.iterations == started.iterations and wrd.tolerances.rho0 == 0.5
+    with pytest.warns(DeprecationWarning, match=r"tolerances\.pairs_cg_fraction is tolerances\.cg_fraction"):
+        assert wrd.tolerances.pairs_cg_fraction == wrd.tolerances.cg_fraction
 
 
 def test_device_change_test_matches_the_host_rule():

@@ -101,7 +101,7 @@ def _full_admm(V, F, alpha_hat, iterations):
     Z, Q, Y, S = (np.zeros((3, len(F), n)) for _ in range(4))
     a = tol.relaxation
     for k in range(iterations):
-        rho = L * min(tol.pairs_rho_max, tol.pairs_rho0 * 2.0 ** (k / tol.pairs_rho_doubling))
+        rho = L * min(tol.pairs_rho_max, tol.rho0 * 2.0 ** (k / tol.pairs_rho_doubling))
         rho2 = 25.0 * rho * rho / (L * A)
         K2 = (alpha + rho) * Wd + rho2 * M
         b = 0.5 * A_V[:, None] * np.ones(n)

@@ -99,8 +99,8 @@ class PenaltySchedule:
 
     @classmethod
     def all_pairs(cls, tol, scale):
-        """all_pairs' schedule: ``tol.pairs_rho0``, ``tol.pairs_rho_max``, ``tol.pairs_rho_doubling``."""
-        return cls(tol.pairs_rho0, tol.pairs_rho_max, tol.pairs_rho_doubling, scale)
+        """all_pairs' schedule: ``tol.rho0``, ``tol.pairs_rho_max``, ``tol.pairs_rho_doubling``."""
+        return cls(tol.rho0, tol.pairs_rho_max, tol.pairs_rho_doubling, scale)
 
 
 def check_schedule(schedule):

@@ -28,7 +28,7 @@ The seven residuals of docs/method.md section 5 are computed (r2 = r1, s2 = s1, 
 symmetry) and reported.
 
 Penalties and stopping test (defaults chosen against exact minimizers, docs/guides/all-pairs.md):
-rho_k = sqrt(A) min(rho_max, rho0 2^(k / rho_doubling)) (``tolerances.pairs_rho0``,
+rho_k = sqrt(A) min(rho_max, rho0 2^(k / rho_doubling)) (``tolerances.rho0``,
 ``pairs_rho_max``, ``pairs_rho_doubling``), rho2_k = rho2_factor rho_k^2 / (sqrt(A) A) (the
 consensus penalty grows faster than rho),
 over-relaxation ``tolerances.relaxation`` in all three steps; stop when every residual is
@@ -44,6 +44,7 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -56,7 +57,7 @@ from scipy.optimize import OptimizeResult
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, problem_fingerprint, read_checkpoint
-from .all_pairs_state import STATE_ROWS, SymmetricADMM, check_memory
+from .all_pairs_state import STATE_ROWS, PairsSettings, SymmetricADMM, check_memory
 from .arguments import check_weight, parse_device, parse_workers
 from .errors import ConvergenceWarning
 from .file_lock import FileLock
@@ -64,6 +65,7 @@ from .kernels.all_pairs import H2, RX2, SX2, U2, X2
 from .kernels.lanes import SCALARS
 from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
 from .mesh import Mesh
+from .operators import build_operators
 from .tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -121,8 +123,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         s1 <= eps_rel_dual max(|D Y M_V|, |A_V| |A_V| / 2), sx <= eps_rel_dual max(|S_V H S_V|, A / 2)
         (r2, s2, rx2 equal r1, s1, rx1 by symmetry; the floors are the scale of the X-step's
         load), plus the absolute terms of docs/method.md section 5 with ``tolerances.eps_abs`` (0 by
-        default). All must be finite and > 0. None (this and the other tolerances below):
-        the ``tolerances.pairs_*`` setting of the same name.
+        default). All must be finite and > 0. None (this and the other settings below):
+        the ``tolerances.pairs_*`` setting of the same name (``tolerances.cg_fraction`` for
+        cg_fraction). The settings are read once per call (:class:`PairsSettings`).
     rho2_factor : float
         rho2 = rho2_factor rho^2 / (sqrt(A) A): the consensus penalty grows like the square
         of the gradient penalty (the authors' initial values have rho2 = 5 rho / A).
@@ -137,9 +140,10 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     schedule : PenaltySchedule or None
         The gradient penalty rho at iteration k = 0, 1, ...: a :class:`~warp_regdist.PenaltySchedule`
         or any object with ``rho(k)`` (absolute) and ``offset_for(penalty)``; rho2 follows from
-        ``rho2_factor``. None: ``PenaltySchedule.all_pairs`` of ``tolerances`` (``pairs_rho0``,
-        ``pairs_rho_max``, ``pairs_rho_doubling``, in units of sqrt(A)). A checkpoint does not
-        record it: resume with the same schedule.
+        ``rho2_factor``. None: ``PenaltySchedule.all_pairs`` of ``tolerances`` (``rho0``,
+        ``pairs_rho_max``, ``pairs_rho_doubling``, in units of sqrt(A)). The multigrid
+        preconditioner targets the middle of its range. A checkpoint does not record it:
+        resume with the same schedule.
     progress : callable or None
         Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
         elapsed seconds, memory bytes).
@@ -189,13 +193,16 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if mesh.element_dim != 2:
         raise ValueError(f"expected a triangle mesh, got {mesh.n_elements} tetrahedra")
     alpha_hat = check_weight(alpha_hat, "alpha_hat")
-    settings = dict(eps_rel=eps_rel, eps_rel_consensus=eps_rel_consensus, eps_rel_dual=eps_rel_dual,
-                    rho2_factor=rho2_factor, cg_fraction=cg_fraction, eps_change=eps_change)
-    settings = {k: getattr(tolerances, f"pairs_{k}") if v is None else v for k, v in settings.items()}
-    for name, value in list(settings.items()) + [("checkpoint_seconds", checkpoint_seconds)]:
+    tol = tolerances
+    given = dict(eps_rel=eps_rel, eps_rel_consensus=eps_rel_consensus, eps_rel_dual=eps_rel_dual,
+                 rho2_factor=rho2_factor, cg_fraction=cg_fraction, eps_change=eps_change)
+    defaults = dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
+                    eps_rel_dual=tol.pairs_eps_rel_dual, rho2_factor=tol.pairs_rho2_factor, cg_fraction=tol.cg_fraction,
+                    eps_change=tol.pairs_eps_change)
+    chosen = {k: defaults[k] if v is None else v for k, v in given.items()}
+    for name, value in list(chosen.items()) + [("checkpoint_seconds", checkpoint_seconds)]:
         if not (name == "eps_change" and value == math.inf):  # inf: no change test
             check_weight(value, name, positive=True)
-    eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor, cg_fraction, eps_change = settings.values()
     if schedule is not None:
         check_schedule(schedule)
     auto_workers = workers is None
@@ -213,7 +220,12 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
     if labels.max() > 0:
         raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
                          "(solve each component separately)")
-    fingerprint = problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor)
+    fingerprint = problem_fingerprint(mesh, alpha_hat, dtype, chosen["rho2_factor"])
+    L = build_operators(mesh).length_scale
+    schedule = PenaltySchedule.all_pairs(tol, L) if schedule is None else schedule
+    settings = PairsSettings(eps_abs=tol.eps_abs, change_window=tol.pairs_change_window, relaxation=tol.relaxation,
+                             cg_rtol=tol.cg_rtol, cg_max_iterations=tol.cg_max_iterations,
+                             penalty_mid=_penalty_mid(schedule, L), **chosen)
     if resume is not None and initial is not None:
         raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: {os.fspath(resume)!r} "
                          f"and {os.fspath(initial)!r}")
@@ -230,15 +242,32 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         if saved is not None and "final" in saved:
             return _final_result(saved, memory, checkpoint)
         state = stack.enter_context(contextlib.closing(
-            SymmetricADMM(mesh, alpha_hat, dev, dtype, rho2_factor, workers, auto_workers)))
-        run = _Run(state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                   cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change,
-                   PenaltySchedule.all_pairs(tolerances, state.L) if schedule is None else schedule)
+            SymmetricADMM(mesh, alpha_hat, dev, dtype, settings, workers, auto_workers)))
+        run = _Run(state, settings, schedule, memory, max_iterations, progress,
+                   Checkpointing(checkpoint, checkpoint_seconds, fingerprint))
         if saved is not None:
             run.restore(saved)
         if start is not None:
             run.warm_start(start)
         return run.iterate(t0)
+
+def _penalty_mid(schedule, L):
+    """sqrt(rho_start rho_end) / L of a schedule: of a PenaltySchedule its rho0 and rho_max, of
+    another object its rho(0) and rho(10^6)."""
+    if isinstance(schedule, PenaltySchedule):
+        return math.sqrt(schedule.rho0 * schedule.rho_max)
+    return math.sqrt(schedule.rho(0) * schedule.rho(10**6)) / L
+
+
+@dataclasses.dataclass(frozen=True)
+class Checkpointing:
+    """Where (``path``, None: no checkpoints) and how often (``seconds``) a run writes its state,
+    and the ``fingerprint`` of the problem written with it."""
+
+    path: object
+    seconds: float
+    fingerprint: dict
+
 
 def _final_result(saved, memory, checkpoint):
     """The result recorded in the checkpoint of a converged run."""
@@ -259,21 +288,19 @@ class _Run:
     uninterrupted run's arithmetic exactly.
     """
 
-    def __init__(self, state, memory, max_iterations, eps_rel, eps_rel_consensus, eps_rel_dual, rho2_factor,
-                 cg_fraction, progress, checkpoint, checkpoint_seconds, fingerprint, eps_change, schedule):
-        self.state, self.memory, self.max_iterations = state, memory, max_iterations
-        self.eps_rel, self.eps_rel_consensus, self.eps_rel_dual = eps_rel, eps_rel_consensus, eps_rel_dual
-        self.rho2_factor, self.cg_fraction, self.progress = rho2_factor, cg_fraction, progress
-        self.checkpoint, self.checkpoint_seconds, self.fingerprint = checkpoint, checkpoint_seconds, fingerprint
+    def __init__(self, state, settings, schedule, memory, max_iterations, progress, checkpointing):
+        self.state, self.settings, self.schedule = state, settings, schedule
+        self.memory, self.max_iterations, self.progress = memory, max_iterations, progress
+        self.checkpoint, self.checkpoint_seconds = checkpointing.path, checkpointing.seconds
+        self.fingerprint = checkpointing.fingerprint
         self.start = 0
         self.history = []
         self.cg_total = 0
         self.cols = self.pairs = None
         self.last_penalties = None
         self.seconds_before = 0.0
-        self.schedule = schedule
         # U as one column: its change test (snapshot, the last window's change, the change to come)
-        self.change_test = ExtrapolatedChangeTest(tolerances.pairs_change_window, eps_change, 1)
+        self.change_test = ExtrapolatedChangeTest(settings.change_window, settings.eps_change, 1)
 
     def restore(self, saved):
         st = self.state
@@ -344,7 +371,7 @@ class _Run:
             self.save(it, self._elapsed())
             self.last_save = time.perf_counter()
         rho = self.schedule.rho(it)
-        self.state.set_penalties(rho, self.rho2_factor * rho * rho / (self.state.L * self.state.A))
+        self.state.set_penalties(rho, self.settings.rho2_factor * rho * rho / (self.state.L * self.state.A))
         self.s2, self.dy2 = self.state.right_hand_side()
 
     def status(self, it):
@@ -352,7 +379,7 @@ class _Run:
         change test; history and progress. True when all hold (the final checkpoint is written)."""
         if it == 0:
             return False
-        st, tol, w = self.state, tolerances, self.state.column_area
+        st, tol, w = self.state, self.settings, self.state.column_area
         n, m, A = st.n, st.m, st.A
         rho_old, rho2_old = self.last_penalties
         cols, pairs = self.cols, self.pairs
@@ -360,12 +387,12 @@ class _Run:
         s1 = rho_old * math.sqrt((w * w) @ self.s2)
         rx = math.sqrt(pairs[RX2])
         sx = math.sqrt(2.0) * rho2_old * math.sqrt(pairs[SX2])
-        eps_p = tolerance(tol.eps_abs * math.sqrt(3 * m) * A, self.eps_rel, math.sqrt(max(w @ cols[1], w @ cols[2])))
-        eps_d = tolerance(tol.eps_abs * math.sqrt(n) * A * A, self.eps_rel_dual,
+        eps_p = tolerance(tol.eps_abs * math.sqrt(3 * m) * A, tol.eps_rel, math.sqrt(max(w @ cols[1], w @ cols[2])))
+        eps_d = tolerance(tol.eps_abs * math.sqrt(n) * A * A, tol.eps_rel_dual,
                           dual_scale(math.sqrt((w * w) @ self.dy2), self.load_norm))
-        eps_x = tolerance(tol.eps_abs * math.sqrt(n) * A ** 1.5, self.eps_rel_consensus,
+        eps_x = tolerance(tol.eps_abs * math.sqrt(n) * A ** 1.5, tol.eps_rel_consensus,
                           math.sqrt(min(pairs[X2], pairs[U2])))
-        eps_dx = tolerance(tol.eps_abs * math.sqrt(n) * A, self.eps_rel_dual, dual_scale(math.sqrt(pairs[H2]), 0.5 * A))
+        eps_dx = tolerance(tol.eps_abs * math.sqrt(n) * A, tol.eps_rel_dual, dual_scale(math.sqrt(pairs[H2]), 0.5 * A))
         self.res = res = np.array([r1, r1, s1, s1, rx, rx, sx])
         self.eps = eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
         self.history.append(res / np.maximum(eps, 1e-300))
@@ -381,9 +408,9 @@ class _Run:
 
     def advance(self, it, count):
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
-        st, tol = self.state, tolerances
+        st, tol = self.state, self.settings
         for j in range(it, it + count):
-            atol = cg_tolerance(self.cg_fraction, np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
+            atol = cg_tolerance(tol.cg_fraction, np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
             self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
             self.last_penalties = st.penalties
             self.cols, self.pairs = st.consensus()

@@ -5,7 +5,7 @@ one part's arrays, PCG and launches (``_Part``), and the whole state with its wo
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import os
 
 import numpy as np
@@ -18,9 +18,34 @@ from .multigrid import smoothed_aggregation
 from .operators import build_operators
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
-from .tolerances import tolerances
 
-__all__ = ["SymmetricADMM", "STATE_ROWS", "memory_estimate", "check_memory", "available_memory"]
+__all__ = ["PairsSettings", "SymmetricADMM", "STATE_ROWS", "memory_estimate", "check_memory", "available_memory"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PairsSettings:
+    """The settings of one all-pairs run, read once from ``tolerances`` and the call's arguments
+    and passed explicitly (the worker processes get them with the setup).
+
+    eps_abs, eps_rel, eps_rel_consensus, eps_rel_dual: the residual tests' absolute and relative
+    tolerances; eps_change, change_window: the extrapolated change test; rho2_factor: the
+    consensus penalty rho2 = rho2_factor rho^2 / (L A); relaxation: the over-relaxation of all
+    three steps; cg_fraction, cg_rtol, cg_max_iterations: the X-step's PCG; penalty_mid: the
+    geometric mean of the penalty schedule's range, in units of L (the multigrid's target).
+    """
+
+    eps_abs: float
+    eps_rel: float
+    eps_rel_consensus: float
+    eps_rel_dual: float
+    eps_change: float
+    change_window: int
+    rho2_factor: float
+    relaxation: float
+    cg_fraction: float
+    cg_rtol: float
+    cg_max_iterations: int
+    penalty_mid: float
 
 
 def available_memory(device):
@@ -65,7 +90,7 @@ def _even_splits(weights, parts):
 class _Setup:
     """Host data that every part of the iteration needs (pickled to the worker processes)."""
 
-    def __init__(self, mesh, alpha_hat, dtype, rho2_factor, parts):
+    def __init__(self, mesh, alpha_hat, dtype, settings, parts):
         self.n, self.m = mesh.n_vertices, mesh.n_elements
         self.dtype = dtype
         ops = build_operators(mesh)
@@ -77,12 +102,11 @@ class _Setup:
         self.alpha = alpha_hat * ops.length_scale
         self.W = lane_width(SCALARS[dtype], self.n)
         self.nb = -(-self.n // self.W)
-        self.relaxation = tolerances.relaxation
+        self.relaxation = settings.relaxation
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
         # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
-        self.K_mid = self.matrix(1.0, rho2_factor * math.sqrt(tolerances.pairs_rho0 * tolerances.pairs_rho_max)
-                                 / self.A)
+        self.K_mid = self.matrix(1.0, settings.rho2_factor * settings.penalty_mid / self.A)
         self.hierarchy = smoothed_aggregation(self.K_mid)
         self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
         self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
@@ -185,13 +209,13 @@ class SymmetricADMM:
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
-    def __init__(self, mesh, alpha_hat, device, dtype, rho2_factor, workers, auto_workers=False):
+    def __init__(self, mesh, alpha_hat, device, dtype, settings, workers, auto_workers=False):
         n = mesh.n_vertices
         nb = -(-n // lane_width(SCALARS[dtype], n))
         parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
         if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
             parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(mesh, alpha_hat, dtype, rho2_factor, parts)
+        self.setup = setup = _Setup(mesh, alpha_hat, dtype, settings, parts)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:n] = setup.vertex_volumes

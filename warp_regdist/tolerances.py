@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import warnings
 
 __all__ = ["Tolerances", "tolerances"]
 
@@ -50,11 +51,11 @@ class Tolerances:
         tolerance would otherwise leave u unchanged and r stalled above its tolerance.
     cg_max_iterations : int
         PCG iteration cap per ADMM iteration.
-    pairs_eps_rel, pairs_eps_rel_consensus, pairs_eps_rel_dual, pairs_rho2_factor, pairs_cg_fraction : float
+    pairs_eps_rel, pairs_eps_rel_consensus, pairs_eps_rel_dual, pairs_rho2_factor : float
         Defaults of the same-named arguments of :func:`warp_regdist.all_pairs` (its residual
-        test, consensus penalty and CG tolerance).
-    pairs_rho0, pairs_rho_max, pairs_rho_doubling : float
-        The all-pairs penalty schedule (as rho0, rho_max, rho_doubling).
+        test and consensus penalty); its CG tolerance defaults to ``cg_fraction``.
+    pairs_rho_max, pairs_rho_doubling : float
+        The all-pairs penalty schedule (as rho_max, rho_doubling; it starts at ``rho0`` too).
     pairs_eps_change, pairs_change_window : float, int
         Change test of :func:`warp_regdist.all_pairs`, every pairs_change_window iterations:
         with c = max |U_k - U_(k - window)| / max U_k, it holds once c / (1 - c / c_before),
@@ -88,8 +89,6 @@ class Tolerances:
     pairs_eps_rel_consensus: float = 5e-5
     pairs_eps_rel_dual: float = 1e-2
     pairs_rho2_factor: float = 25.0
-    pairs_cg_fraction: float = 1e-3
-    pairs_rho0: float = 0.5
     pairs_rho_max: float = 8.0
     pairs_rho_doubling: float = 30.0
     pairs_eps_change: float = 3e-3
@@ -97,9 +96,24 @@ class Tolerances:
     degenerate_element: float = 1e-12
     max_gradient: float = 1.5
 
+    def __getattr__(self, name):
+        if name in _RENAMED:
+            _warn_renamed(name)
+            return getattr(self, _RENAMED[name])
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __setattr__(self, name, value):
+        if name in _RENAMED:
+            _warn_renamed(name)
+            name = _RENAMED[name]
+        super().__setattr__(name, value)
+
     @contextlib.contextmanager
     def override(self, **values):
         """Temporarily set some attributes (restored on exit, also after an exception)."""
+        for name in [n for n in values if n in _RENAMED]:
+            _warn_renamed(name)
+            values[_RENAMED[name]] = values.pop(name)
         unknown = set(values) - {f.name for f in dataclasses.fields(self)}
         if unknown:
             raise ValueError(f"expected tolerance names among {[f.name for f in dataclasses.fields(self)]}, got {sorted(unknown)}")
@@ -111,6 +125,15 @@ class Tolerances:
         finally:
             for k, v in old.items():
                 setattr(self, k, v)
+
+
+_RENAMED = {"pairs_cg_fraction": "cg_fraction", "pairs_rho0": "rho0"}
+"""Settings both solvers now share under one name (the old all-pairs names still work, with a warning)."""
+
+
+def _warn_renamed(name):
+    warnings.warn(f"tolerances.{name} is tolerances.{_RENAMED[name]}, shared by both solvers; the old name "
+                  "will be removed", DeprecationWarning, stacklevel=4)
 
 
 tolerances = Tolerances()
