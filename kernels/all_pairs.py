@@ -19,7 +19,8 @@ import types
 
 import warp as wp
 
-from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, group_blocks, lane_funcs, lane_type
+from .element_core import DY2, G2, R2, S2, Z2, element_funcs
+from .lanes import chunk_rows, group_blocks, lane_type
 
 # Entries of the scalar accumulator (5,) of the consensus step, weighted by A_V[i] A_V[j].
 RX2, X2, U2, SX2, H2 = 0, 1, 2, 3, 4
@@ -35,7 +36,7 @@ def all_pairs_kernels(scalar, W):
     one = scalar(1.0)
     zero = scalar(0.0)
     half = scalar(0.5)
-    f = lane_funcs(scalar, W)
+    f = element_funcs(scalar, W)
     element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
 
     @wp.kernel(enable_backward=False, module=module)

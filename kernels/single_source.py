@@ -15,7 +15,8 @@ import types
 
 import warp as wp
 
-from .lanes import DY2, G2, R2, S2, Z2, chunk_rows, group_blocks, lane_funcs, lane_type
+from .element_core import DY2, G2, R2, S2, Z2, element_funcs
+from .lanes import chunk_rows, group_blocks, lane_type
 
 IT, CG_TOTAL = 0, 1
 # Rows of ``lane``: the per-lane constants of the test (eps_abs sqrt(n_free) A, |mask A_V|), the
@@ -34,7 +35,7 @@ def single_source_kernels(scalar, W, k):
     module = wp.get_module(f"warp_regdist_single_source_{scalar.__name__}_{W}_{k}")
     one = scalar(1.0)
     zero = scalar(0.0)
-    f = lane_funcs(scalar, W)
+    f = element_funcs(scalar, W)
     element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
 
     @wp.kernel(enable_backward=False, module=module)

@@ -76,7 +76,7 @@ def test_device_test_is_the_stopping_module_on_the_same_inputs():
     from warp_regdist import stopping
     from warp_regdist.kernels.single_source import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
                                            single_source_kernels)
-    from warp_regdist.kernels.lanes import DY2, G2, R2, Z2
+    from warp_regdist.kernels.element_core import DY2, G2, R2, Z2
 
     kern = single_source_kernels(wp.float64, 4, 3)
     rng = np.random.default_rng(7)
