@@ -179,7 +179,7 @@ def tile(cells, path, row_labels, titles, cell_width=2.2):
 
 def render_cells(tmp, mesh, source, fields, levels, view, tag):
     """Render each field of one mesh to tmp/<tag>_<i>.png: list of paths."""
-    from warp_regdist.render import render_distance
+    from warp_regdist.output.render import render_distance
     paths = []
     for i, u in enumerate(fields):
         path = os.path.join(tmp, f"{tag}_{i}.png")

@@ -59,8 +59,8 @@ def run_case(name):
 
     wp.config.quiet = True
     import warp_regdist as wrd
-    from warp_regdist.tetrahedralize import interior_edge
-    from warp_regdist.volume_grid import sample_on_grid
+    from warp_regdist.geometry.tetrahedralize import interior_edge
+    from warp_regdist.geometry.volume_grid import sample_on_grid
 
     surface = wrd.load_mesh(_surface_path(name))
     warm = wrd.tetrahedralize(surface, max_volume=None, quality=None)

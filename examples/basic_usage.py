@@ -8,7 +8,7 @@ from importlib.resources import files
 import numpy as np
 
 import warp_regdist as wrd
-from warp_regdist.render import render_distance
+from warp_regdist.output.render import render_distance
 
 mesh = wrd.load_mesh(files("warp_regdist") / "data" / "spot_rr.off")
 solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)          # operators assembled once

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 import warp_regdist as wrd  # noqa: E402
-from warp_regdist.render import render_distance  # noqa: E402
+from warp_regdist.output.render import render_distance  # noqa: E402
 
 SHARED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "meshes")
 SETTINGS = {"dirichlet": 0.05, "hessian": 1e-3}  # alpha_hat: the Hessian's alpha scales as A^(3/2)

@@ -24,8 +24,8 @@ from importlib.resources import files
 import numpy as np
 
 import warp_regdist as wrd
-from warp_regdist.contours import isolines
-from warp_regdist.render import render_distance
+from warp_regdist.output.contours import isolines
+from warp_regdist.output.render import render_distance
 
 
 def default_design(mesh):

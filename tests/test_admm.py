@@ -1,4 +1,4 @@
-"""The ADMM engine's parts (warp_regdist/admm.py) on their own, and swapped into both solvers.
+"""The ADMM engine's parts (warp_regdist/solvers/admm.py) on their own, and swapped into both solvers.
 
 Schedules and change tests are checked on exact numbers (powers of two, hand-made columns);
 a swapped schedule must change the iterations but not the answer: the cvxpy + Clarabel
@@ -18,7 +18,7 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from conftest import TIGHT
-from warp_regdist.stopping import ChangeTest, ExtrapolatedChangeTest
+from warp_regdist.solvers.stopping import ChangeTest, ExtrapolatedChangeTest
 from warp_regdist import PenaltySchedule
 
 PAIRS = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
@@ -242,8 +242,8 @@ def test_device_change_test_matches_the_host_rule():
 def test_captured_graph_launches_and_sparse_checks_give_the_same_solve(sphere162, monkeypatch):
     """The captured iteration, the same launches one by one, and host reads every 7 iterations
     (the device freezes each column at its own iteration): the same columns, bit for bit."""
-    from warp_regdist import single_source_batch
-    from warp_regdist import solver as solver_module
+    from warp_regdist.solvers import single_source_batch
+    from warp_regdist.solvers import solver as solver_module
 
     solver = wrd.DistanceSolver(sphere162[0], 0.05, workers=1)
     sets = [[j * 17] for j in range(6)] + [[3, 90]]
@@ -276,8 +276,8 @@ class _Countdown:
 
 
 def test_engine_loop_tests_every_check_and_stops_where_it_should():
-    from warp_regdist.admm import CONVERGED, INTERRUPTED, MAX_ITERATIONS, run_iterations
-    from warp_regdist import interrupt
+    from warp_regdist.solvers.admm import CONVERGED, INTERRUPTED, MAX_ITERATIONS, run_iterations
+    from warp_regdist.solvers import interrupt
 
     p = _Countdown(7)
     assert run_iterations(p, 0, 100, check_every=3) == (9, CONVERGED)

@@ -16,7 +16,7 @@ import pytest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
-import warp_regdist.all_pairs_state as all_pairs_state
+import warp_regdist.solvers.all_pairs_state as all_pairs_state
 from warp_regdist.cli import main
 from warp_regdist.metrics import triangle_inequality_violations
 

@@ -16,7 +16,7 @@ import pytest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
-from warp_regdist.operators import build_operators
+from warp_regdist.geometry.operators import build_operators
 
 
 def _bumpy_sphere():

@@ -16,7 +16,7 @@ import pytest
 
 import warp_regdist as wrd
 from meshes import icosphere, perturbed, square_grid
-from warp_regdist import matrix_store
+from warp_regdist.matrices import matrix_store
 from warp_regdist.cli import main
 
 distributed = pytest.importorskip("distributed")
@@ -100,7 +100,7 @@ class _DieInBlockOnce(distributed.WorkerPlugin):
         self.marker, self.first = marker, first
 
     def setup(self, worker):
-        import warp_regdist.distributed as wd
+        import warp_regdist.matrices.distributed as wd
 
         self.solve_rows = solve_rows = wd.solve_rows
         marker, first = self.marker, self.first
@@ -118,7 +118,7 @@ class _DieInBlockOnce(distributed.WorkerPlugin):
         wd.solve_rows = die_once
 
     def teardown(self, worker):
-        import warp_regdist.distributed as wd
+        import warp_regdist.matrices.distributed as wd
 
         wd.solve_rows = self.solve_rows
 

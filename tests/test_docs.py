@@ -5,7 +5,6 @@ run, every example runs at a small size, and the interactive viewer works headle
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 

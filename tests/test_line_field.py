@@ -1,4 +1,4 @@
-"""Line-field design (warp_regdist/line_field.py) against exactly known fields.
+"""Line-field design (warp_regdist/geometry/line_field.py) against exactly known fields.
 
 On an intrinsically flat surface parallel transport has no holonomy, so the smoothest
 field through one constraint is the parallel field through it, which the test meshes
@@ -12,7 +12,7 @@ import pytest
 
 import meshes
 import warp_regdist as wrd
-from warp_regdist.line_field import read_directions
+from warp_regdist.geometry.line_field import read_directions
 
 
 def _normals(V, F):

@@ -14,8 +14,8 @@ import warp._src.context as warp_context
 
 import meshes
 import warp_regdist as wrd
-import warp_regdist.all_pairs_admm as ap
-import warp_regdist.all_pairs_checkpoint as all_pairs_checkpoint
+import warp_regdist.solvers.all_pairs_admm as ap
+import warp_regdist.solvers.all_pairs_checkpoint as all_pairs_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +116,7 @@ def test_interrupt_returns_the_iterate_and_checkpoints(sphere642, tmp_path):
 def test_solve_many_interrupt_returns_current_iterates(monkeypatch):
     """A Ctrl-C in the parent (sent right after its own part's 5th iteration) stops the worker
     process's part too: every column returns its current iterate, flagged not converged."""
-    import warp_regdist.solver as solver_module
+    import warp_regdist.solvers.solver as solver_module
 
     V, F = meshes.icosphere(4, 1.0)
     solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu", workers=2)

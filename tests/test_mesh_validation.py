@@ -361,7 +361,7 @@ def test_mesh_arrays_are_read_only_copies_and_derived_data_is_kept():
 
 
 def test_tetrahedron_volumes_and_row_keys_beyond_int64():
-    from warp_regdist.mesh import _row_keys
+    from warp_regdist.geometry.mesh import _row_keys
 
     cube = wrd.Mesh(np.array([[0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 4.0]]), [[0, 1, 2, 3]])
     assert cube.element_volumes.tolist() == pytest.approx([4.0], rel=1e-14)  # 2 * 3 * 4 / 6

@@ -10,8 +10,8 @@ import warp as wp
 import warp_regdist as wrd
 from test_multigrid import _lanes, _problem
 from warp_regdist.kernels.lanes import SCALARS, lane_type
-from warp_regdist.multigrid import smoothed_aggregation
-from warp_regdist.pcg import BatchedPCG, JacobiPreconditioner
+from warp_regdist.solvers.multigrid import smoothed_aggregation
+from warp_regdist.solvers.pcg import BatchedPCG, JacobiPreconditioner
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ import pytest
 import trimesh
 
 import warp_regdist as wrd
-from warp_regdist.contours import isolines
-from warp_regdist.render import render_distance, view_rotation
+from warp_regdist.output.contours import isolines
+from warp_regdist.output.render import render_distance, view_rotation
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -156,7 +156,7 @@ def test_the_depth_test_hides_isolines_behind_a_nearer_surface(tmp_path, monkeyp
     # near sheet must cover the far one's left half and every isoline behind it.
     import matplotlib.image
 
-    import warp_regdist.render as render
+    import warp_regdist.output.render as render
 
     far_v, far_f = _sheet(16, 8, 2.0, 0.0)
     toward_camera = view_rotation(np.concatenate([far_v, [[0.0, 0.0, 0.5]]]), 0.0, 0.0)[2, 2]

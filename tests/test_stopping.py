@@ -1,5 +1,5 @@
 """The stopping rule: the error at the default stop against exact minimizers on irregular meshes, and the
-device's test against warp_regdist.stopping.
+device's test against warp_regdist.solvers.stopping.
 
 tests/data/stopping_cat80.npz: cat_rr quadric-decimated to 80 vertices (fast-simplification
 0.2, target_reduction 1 - 80/1949: angles from 3.8 to 171 degrees) and the exact all-pairs
@@ -68,12 +68,12 @@ def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
 
 
 def test_device_test_is_the_stopping_module_on_the_same_inputs():
-    """kernels/single_source.py admm_check against warp_regdist.stopping on random sums: the primal and
+    """kernels/single_source.py admm_check against warp_regdist.solvers.stopping on random sums: the primal and
     dual tolerances with their floors, the dual scale and the CG tolerance, lane by lane
     (four lanes, float64, at an iteration > 0 and with a primal term that binds in some lanes)."""
     import warp as wp
 
-    from warp_regdist import stopping
+    from warp_regdist.solvers import stopping
     from warp_regdist.kernels.single_source import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
                                            single_source_kernels)
     from warp_regdist.kernels.element_core import DY2, G2, R2, Z2

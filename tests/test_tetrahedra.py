@@ -23,10 +23,10 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from warp_regdist.cli import main
-from warp_regdist.export import save_vtu
-from warp_regdist.operators import build_operators
-from warp_regdist.contours import plane_section
-from warp_regdist.render import render_cut
+from warp_regdist.output.export import save_vtu
+from warp_regdist.geometry.operators import build_operators
+from warp_regdist.output.contours import plane_section
+from warp_regdist.output.render import render_cut
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

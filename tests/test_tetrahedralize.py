@@ -21,8 +21,8 @@ import trimesh
 import closed_forms
 import warp_regdist as wrd
 from warp_regdist.cli import main
-from warp_regdist.tetrahedralize import interior_edge
-from warp_regdist.volume_grid import sample_on_grid
+from warp_regdist.geometry.tetrahedralize import interior_edge
+from warp_regdist.geometry.volume_grid import sample_on_grid
 
 pytest.importorskip("tetgen", reason="the optional 'tetgen' package (pip install 'warp-regdist[volume]')")
 

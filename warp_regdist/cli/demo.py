@@ -30,7 +30,7 @@ def add_parser(sub, solver_options) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..render import render_distance
+    from ..output.render import render_distance
 
     if os.path.exists(args.output) and not os.path.isdir(args.output):
         raise ValueError(f"expected --output as a directory, got the file {args.output!r}")

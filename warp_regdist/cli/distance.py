@@ -80,7 +80,7 @@ def add_parser(sub, solver_options) -> None:
 
 def _regularization(args: argparse.Namespace, mesh) -> dict:
     """DistanceSolver keywords from --regularizer, --beta-hat and --directions."""
-    from ..line_field import read_directions
+    from ..geometry.line_field import read_directions
 
     if args.directions is None:
         if args.regularizer == "vector_field":
@@ -94,8 +94,8 @@ def _regularization(args: argparse.Namespace, mesh) -> dict:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..export import save_vtu
-    from ..render import render_cut, render_distance
+    from ..output.export import save_vtu
+    from ..output.render import render_cut, render_distance
 
     check_output(args.output, OUTPUT_EXTENSIONS, "--output")
     if args.png is not None:

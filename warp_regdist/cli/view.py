@@ -29,7 +29,7 @@ def add_parser(sub, solver_options) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from ..viewer import show
+    from ..output.viewer import show
 
     mesh = load(args.mesh)
     if not args.values.lower().endswith(".npy") or not os.path.isfile(args.values):

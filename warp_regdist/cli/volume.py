@@ -8,8 +8,7 @@ import sys
 
 import numpy as np
 
-from .common import (DEMO_ALPHA_HAT, EXIT_STATUS, LISTED_SOURCES, check_output, load, parse_sources, solve,
-                     summary)
+from .common import DEMO_ALPHA_HAT, EXIT_STATUS, LISTED_SOURCES, check_output, load, parse_sources, solve, summary
 
 
 def add_parser(sub, solver_options) -> None:
@@ -72,10 +71,10 @@ def run(args: argparse.Namespace) -> None:
 
     from scipy.spatial import cKDTree
 
-    from ..export import save_vtu
-    from ..render import render_cut
-    from ..tetrahedralize import tetrahedralize
-    from ..volume_grid import sample_on_grid
+    from ..output.export import save_vtu
+    from ..output.render import render_cut
+    from ..geometry.tetrahedralize import tetrahedralize
+    from ..geometry.volume_grid import sample_on_grid
 
     check_output(args.output, (".vtu",), "--output")
     if args.png is not None:
@@ -102,7 +101,7 @@ def run(args: argparse.Namespace) -> None:
     except ModuleNotFoundError as exc:
         raise ValueError(str(exc)) from None
     if args.max_edge is None and args.max_volume is None:
-        from ..tetrahedralize import interior_edge
+        from ..geometry.tetrahedralize import interior_edge
 
         max_edge = interior_edge(surface.vertices, surface.faces, args.alpha_hat)
     bounds = "" if max_edge == "auto" else f", max edge {max_edge:.3g}"

@@ -23,7 +23,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from .arguments import check_weight
+from ..arguments import check_weight
 
 __all__ = ["REGULARIZERS", "Regularizer", "build_regularizer"]
 

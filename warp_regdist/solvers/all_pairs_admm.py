@@ -58,15 +58,15 @@ from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, problem_fingerprint, read_checkpoint
 from .all_pairs_state import STATE_ROWS, PairsSettings, SymmetricADMM, check_memory
-from .arguments import check_weight, parse_device, parse_workers
-from .errors import ConvergenceWarning
-from .file_lock import FileLock
-from .kernels.all_pairs import H2, RX2, SX2, U2, X2
-from .kernels.lanes import SCALARS
+from ..arguments import check_weight, parse_device, parse_workers
+from ..errors import ConvergenceWarning
+from ..file_lock import FileLock
+from ..kernels.all_pairs import H2, RX2, SX2, U2, X2
+from ..kernels.lanes import SCALARS
 from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
-from .mesh import Mesh
-from .operators import build_operators
-from .tolerances import tolerances
+from ..geometry.mesh import Mesh
+from ..geometry.operators import build_operators
+from ..tolerances import tolerances
 
 __all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
 

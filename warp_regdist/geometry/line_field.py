@@ -30,7 +30,7 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
-from .arguments import read_csv_rows
+from ..arguments import read_csv_rows
 from .mesh import Mesh
 
 __all__ = ["line_field", "read_directions"]

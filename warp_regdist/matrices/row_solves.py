@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 
-from .errors import ConvergenceWarning
+from ..errors import ConvergenceWarning
 
 __all__ = ["solve_rows"]
 

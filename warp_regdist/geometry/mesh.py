@@ -13,8 +13,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
-from .errors import MeshError
-from .tolerances import tolerances
+from ..errors import MeshError
+from ..tolerances import tolerances
 
 __all__ = ["Mesh", "boundary_vertices"]
 

@@ -25,7 +25,7 @@ import shutil
 
 import numpy as np
 
-from .file_lock import FileLock
+from ..file_lock import FileLock
 
 __all__ = ["MemoryRows", "DiskRows", "NpyFile", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
 

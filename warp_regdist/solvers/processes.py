@@ -42,7 +42,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from . import interrupt
-from .errors import WorkerError
+from ..errors import WorkerError
 
 __all__ = ["WorkerPool", "SharedArrays", "processes_available", "watch", "check_workers"]
 
@@ -112,7 +112,7 @@ _WORKER = """
 import sys
 import warp
 warp.config.log_level = warp.LOG_WARNING
-from warp_regdist.processes import _serve
+from warp_regdist.solvers.processes import _serve
 _serve(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
 """
 
@@ -290,7 +290,7 @@ def _serve(read_fd, write_fd, parent):
     except EOFError:
         return
     try:
-        from .arguments import parse_device
+        from ..arguments import parse_device
 
         parse_device("cpu")  # starts Warp without its CUDA-driver warning
         factory, args, index, stop_flag = message

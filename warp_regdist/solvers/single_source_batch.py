@@ -13,9 +13,9 @@ import time
 import numpy as np
 import warp as wp
 
-from .kernels.single_source import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
-                           single_source_kernels)
-from .kernels.lanes import lane_kernels, row_dim, thread_span
+from ..kernels.single_source import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST,
+                                     S_OUT, single_source_kernels)
+from ..kernels.lanes import lane_kernels, row_dim, thread_span
 
 __all__ = ["Workspace", "DeviceRule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
 

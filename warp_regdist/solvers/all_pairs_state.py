@@ -12,11 +12,11 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .kernels.all_pairs import all_pairs_kernels
-from .kernels.element_core import DY2, G2, R2, S2, Z2
-from .kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
+from ..kernels.all_pairs import all_pairs_kernels
+from ..kernels.element_core import DY2, G2, R2, S2, Z2
+from ..kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
 from .multigrid import smoothed_aggregation
-from .operators import build_operators
+from ..geometry.operators import build_operators
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 

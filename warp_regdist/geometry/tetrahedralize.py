@@ -14,8 +14,8 @@ import os
 
 import numpy as np
 
-from .arguments import check_weight
-from .errors import MeshError
+from ..arguments import check_weight
+from ..errors import MeshError
 from .mesh import Mesh
 from .mesh_io import load_mesh
 

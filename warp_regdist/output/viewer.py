@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import Mesh
+from ..geometry.mesh import Mesh
 
 __all__ = ["show"]
 

@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 
-from .errors import MeshError
+from ..errors import MeshError
 from .mesh import Mesh
 
 __all__ = ["load_mesh", "data_path"]
@@ -24,7 +24,7 @@ _SURFACE_FORMATS = (".off", ".ply", ".stl")  # read by trimesh (OBJ by _read_obj
 def data_path(name):
     """Path (str) of a mesh shipped with the package, e.g. ``data_path("spot_rr.off")`` (spot, 4,764
     vertices, the demo's mesh); ValueError naming the shipped files for another name."""
-    folder = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
+    folder = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
     shipped = sorted(f for f in os.listdir(folder) if not f.startswith("."))
     if name not in shipped:
         raise ValueError(f"expected one of the shipped files {shipped}, got {name!r}")

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from .mesh import Mesh
+from ..geometry.mesh import Mesh
 
 __all__ = ["save_vtu"]
 

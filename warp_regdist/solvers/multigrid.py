@@ -39,8 +39,8 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from .kernels.lanes import lane_type, row_dim, thread_span
-from .kernels.multigrid import multigrid_kernels
+from ..kernels.lanes import lane_type, row_dim, thread_span
+from ..kernels.multigrid import multigrid_kernels
 from .csr import csr_arrays
 
 __all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]

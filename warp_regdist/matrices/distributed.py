@@ -18,8 +18,8 @@ import warnings
 import numpy as np
 
 from .matrix_store import average_source_pairs
-from .errors import ConvergenceWarning
-from .solver import DistanceSolver
+from ..errors import ConvergenceWarning
+from ..solvers.solver import DistanceSolver
 from .row_solves import solve_rows
 
 __all__ = ["check_client", "solve_blocks", "lazy_matrix"]

@@ -28,22 +28,22 @@ import numpy as np
 import warp as wp
 from scipy.optimize import OptimizeResult
 
-from .kernels.single_source import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST, RHO_LAST,
-                           S_LAST)
-from .kernels.lanes import SCALARS, lane_type, lane_width
-from .mesh import Mesh
+from ..kernels.single_source import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST,
+                                     RHO_LAST, S_LAST)
+from ..kernels.lanes import SCALARS, lane_type, lane_width
+from ..geometry.mesh import Mesh
 from .multigrid import Hierarchy, smoothed_aggregation
-from .operators import build_operators
+from ..geometry.operators import build_operators
 from . import interrupt
 from .pcg import BatchedPCG
 from .processes import WorkerPool, processes_available, watch
 from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
-from .arguments import check_weight, parse_device, parse_workers
-from .errors import ConvergenceWarning
-from .regularizers import build_regularizer
+from ..arguments import check_weight, parse_device, parse_workers
+from ..errors import ConvergenceWarning
+from ..geometry.regularizers import build_regularizer
 from .stopping import tolerance
 from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, DeviceRule, Workspace, collect, lanes
-from .tolerances import tolerances
+from ..tolerances import tolerances
 
 __all__ = ["DistanceSolver", "DistanceResult"]
 

@@ -20,13 +20,13 @@ import warnings
 import numpy as np
 
 from . import distributed
-from .arguments import check_weight, parse_workers
-from .kernels.lanes import SCALARS
+from ..arguments import check_weight, parse_workers
+from ..kernels.lanes import SCALARS
 from .matrix_store import open_rows
-from .mesh import Mesh
-from .errors import ConvergenceWarning
+from ..geometry.mesh import Mesh
+from ..errors import ConvergenceWarning
 from .row_solves import solve_rows
-from .solver import DistanceSolver
+from ..solvers.solver import DistanceSolver
 
 __all__ = ["distance_matrix"]
 

@@ -26,8 +26,8 @@ import scipy.sparse as sp
 import warp as wp
 
 from .csr import csr_arrays
-from .kernels.lanes import row_dim, thread_span
-from .kernels.pcg import ITERATION, RR, pcg_kernels
+from ..kernels.lanes import row_dim, thread_span
+from ..kernels.pcg import ITERATION, RR, pcg_kernels
 from .multigrid import Hierarchy, MultigridPreconditioner, smoothed_aggregation
 
 __all__ = ["BatchedPCG", "JacobiPreconditioner"]

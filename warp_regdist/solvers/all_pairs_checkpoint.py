@@ -11,7 +11,7 @@ import zipfile
 import numpy as np
 
 from .all_pairs_state import STATE_ROWS
-from .kernels.lanes import SCALARS, lane_width
+from ..kernels.lanes import SCALARS, lane_width
 
 __all__ = ["checkpoint_bytes", "check_checkpoint_room", "problem_fingerprint", "read_checkpoint"]
 

@@ -1,0 +1,81 @@
+"""The package's layout stays easy to see: no import circles between its modules, no module
+over 500 lines, and the module paths of earlier releases still import (with a warning)."""
+
+import ast
+import os
+import subprocess
+import sys
+
+import warp_regdist
+
+PACKAGE = os.path.dirname(warp_regdist.__file__)
+KERNELS = os.path.dirname(warp_regdist.kernels.__file__)
+
+
+def _modules():
+    """{module name: path} of every module of warp_regdist and warp_regdist.kernels."""
+    found = {}
+    for root, prefix in ((PACKAGE, "warp_regdist"), (KERNELS, "warp_regdist.kernels")):
+        for folder, _, files in os.walk(root):
+            if "__pycache__" in folder or (root == PACKAGE and folder.startswith(KERNELS)):
+                continue
+            package = ".".join([prefix] + [p for p in os.path.relpath(folder, root).split(os.sep) if p != "."])
+            for f in files:
+                if f.endswith(".py"):
+                    found[package if f == "__init__.py" else f"{package}.{f[:-3]}"] = os.path.join(folder, f)
+    return found
+
+
+def _imports(name, path, modules):
+    """The package modules that ``name`` imports (relative imports, lazy ones too)."""
+    package = name if path.endswith("__init__.py") else name.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(ast.parse(open(path).read())):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            parts = package.split(".")
+            base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            targets = [f"{base}.{a.name}" for a in node.names] if node.module is None else [base]
+            out.update(t for t in targets if t in modules and t != name and t != "warp_regdist")
+    return out
+
+
+def test_no_import_circles():
+    modules = _modules()
+    graph = {name: _imports(name, path, modules) for name, path in modules.items()}
+    state = {}
+
+    def visit(node, stack):
+        state[node] = "open"
+        for nxt in graph[node]:
+            if state.get(nxt) == "open":
+                raise AssertionError("import circle: " + " -> ".join(stack[stack.index(nxt):] + [nxt]))
+            if nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = "done"
+
+    assert len(modules) > 40
+    for name in graph:
+        if name not in state:
+            visit(name, [name])
+
+
+def test_no_module_over_500_lines():
+    long = {name: n for name, path in _modules().items() if (n := sum(1 for _ in open(path))) > 500}
+    assert long == {}
+
+
+def test_earlier_module_paths_import_with_a_warning():
+    code = ("import warnings, warp_regdist\n"
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    import warp_regdist.render as old\n"
+            "    from warp_regdist.volume_grid import sample_on_grid\n"
+            "import warp_regdist.output.render as new\n"
+            "print(old is new, sample_on_grid.__module__, callable(warp_regdist.tetrahedralize))\n"
+            "print([str(w.message) for w in caught if w.category is DeprecationWarning])\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    first, second = done.stdout.strip().splitlines()[-2:]
+    assert first == "True warp_regdist.geometry.volume_grid True"
+    assert "warp_regdist.render is warp_regdist.output.render; the old path will be removed" in second
+    assert "warp_regdist.volume_grid is warp_regdist.geometry.volume_grid" in second

@@ -1,0 +1,2 @@
+"""What a person looks at: isolines and plane sections, PNG pictures, the interactive viewer,
+and .vtu files for ParaView."""
