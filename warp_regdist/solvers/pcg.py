@@ -108,6 +108,11 @@ class BatchedPCG:
         recorded into the graph meanwhile), so use it only when no other thread launches;
         on CUDA it needs conditional graph nodes (CUDA 12.4+).
 
+    The per-lane squared absolute tolerance is a device array, ``atol2`` (blocks,) of lane
+    vectors, which the next solves read: :meth:`solve` writes it from the host; a device loop
+    (the single-source stopping kernel) writes it in place, so the tolerance of every u-step is
+    decided on the device without a host round trip.
+
     Thread safety: kernels are loaded and launches recorded (graphs captured) only at the
     first solve with new arrays and after :meth:`set_active_blocks`; later solves with the
     same arrays only replay them, so several solvers can run in several threads once each
