@@ -2,7 +2,7 @@
 
 A :class:`Mesh` is validated once on construction, so that no solver kernel ever sees
 an index out of range, a NaN coordinate or a zero-volume element. Files are read by
-:func:`warp_regdist.mesh_io.load_mesh`.
+:func:`warp_regdist.geometry.mesh_io.load_mesh`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Mesh files to :class:`~warp_regdist.mesh.Mesh`: triangle surfaces (OBJ, OFF, PLY, STL) and
+"""Mesh files to :class:`~warp_regdist.geometry.mesh.Mesh`: triangle surfaces (OBJ, OFF, PLY, STL) and
 tetrahedral volumes (gmsh, VTK, Medit), in the file's vertex order.
 
 OBJ is read by our own reader (trimesh splits an OBJ by material and renumbers it),

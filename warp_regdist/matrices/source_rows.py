@@ -3,8 +3,8 @@
 Row r of the result is the single-source regularized distance (Algorithm 1) from vertex
 ``sources[r]``. The rows are solved in blocks of ``chunk`` sources, each block one batched
 ADMM (:meth:`DistanceSolver.solve_many`): here, or as tasks on a Dask cluster
-(:mod:`warp_regdist.distributed`). Blocks go to memory or, with ``out``, to a Zarr array or
-a ``.npy`` file, resumably (:mod:`warp_regdist.matrix_store`). The rows are not
+(:mod:`warp_regdist.matrices.distributed`). Blocks go to memory or, with ``out``, to a Zarr array or
+a ``.npy`` file, resumably (:mod:`warp_regdist.matrices.matrix_store`). The rows are not
 symmetric (d(x, y) != d(y, x) for alpha > 0); ``symmetrize`` averages the two values of
 every pair of source vertices, as the paper does for its "symmetrized fixed-source"
 comparison. Unlike :func:`~warp_regdist.all_pairs`, no constraint couples the rows, so this

@@ -3,7 +3,7 @@
 Both are exact for a field that is linear on every element: on a triangle its level set
 is one straight segment between two edges (marching triangles, :func:`isolines`); a plane
 meets a tetrahedron in a triangle or a quadrilateral on which the field is again linear
-(marching tetrahedra, :func:`plane_section`). The pictures of :mod:`warp_regdist.render`
+(marching tetrahedra, :func:`plane_section`). The pictures of :mod:`warp_regdist.output.render`
 and the knitting example's polyline export are drawn from these.
 """
 

@@ -9,7 +9,7 @@ depth encoded in the 24 RGB bits of the colour, and a segment is kept when it li
 further than a small lift (the median edge length) behind the surface seen at its
 pixel and, on a closed consistently oriented surface, when its face looks at the
 camera.  The isolines and plane sections are the exact contours of
-:mod:`warp_regdist.contours`.  No figure is ever shown and matplotlib's global state
+:mod:`warp_regdist.output.contours`.  No figure is ever shown and matplotlib's global state
 (backend, rcParams) is left untouched.
 """
 

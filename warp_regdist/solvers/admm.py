@@ -4,7 +4,7 @@
 :func:`run_iterations` drives a problem that supplies ``status(it)`` (the tests of its iterate
 after ``it`` iterations, read from the device) and ``advance(it, count)`` (``count`` iterations
 on the device, ending with the device work of the next test). :class:`PenaltySchedule` is the
-penalty rho at iteration k; the stopping rule is :mod:`warp_regdist.stopping`. Both solvers build
+penalty rho at iteration k; the stopping rule is :mod:`warp_regdist.solvers.stopping`. Both solvers build
 them from :data:`warp_regdist.tolerances` (overridable per call with ``tolerances.override``);
 ``DistanceSolver.solve``, ``solve_many`` and ``all_pairs`` take ``schedule=`` to swap the
 schedule for a :class:`PenaltySchedule` or any object with ``rho(k)`` and ``offset_for(penalty)``.
@@ -33,9 +33,9 @@ def run_iterations(problem, start, max_iterations, check_every=1):
     stopping test (it may also collect finished columns, record history, report progress);
     ``problem.advance(it, count)`` runs iterations it .. it + count - 1 and the device work of the
     next test. The loop stops at the first passing test, at ``max_iterations`` (the last advance
-    is shortened to end there), or at a Ctrl-C caught by :func:`warp_regdist.interrupt.catch_interrupt`
+    is shortened to end there), or at a Ctrl-C caught by :func:`warp_regdist.solvers.interrupt.catch_interrupt`
     (checked before each test: an interrupted run returns after the advance under way, untested).
-    Before each test it also raises :class:`~warp_regdist.processes.WorkerError` if a worker
+    Before each test it also raises :class:`~warp_regdist.errors.WorkerError` if a worker
     process of this process has died.
 
     Returns

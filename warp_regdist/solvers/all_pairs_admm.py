@@ -417,7 +417,7 @@ class _Run:
             self.top(j + 1)
 
     def iterate(self, t0):
-        """The loop (:func:`~warp_regdist.admm.run_iterations`) from ``self.start``; the AllPairsResult."""
+        """The loop (:func:`~warp_regdist.solvers.admm.run_iterations`) from ``self.start``; the AllPairsResult."""
         self.t0 = t0
         self.last_save = time.perf_counter()
         # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and

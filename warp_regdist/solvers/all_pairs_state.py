@@ -1,4 +1,4 @@
-"""The state of the symmetric all-pairs ADMM (:mod:`warp_regdist.all_pairs_admm`) and its steps,
+"""The state of the symmetric all-pairs ADMM (:mod:`warp_regdist.solvers.all_pairs_admm`) and its steps,
 split among CPU processes: the memory it needs, the operators every part shares (``Setup``),
 one part's arrays, PCG and launches (``_Part``), and the whole state with its worker processes
 (``SymmetricADMM``)."""
@@ -205,7 +205,7 @@ class SymmetricADMM:
 
     On the CPU the iteration is split into up to ``workers`` parts (by default at most one
     per 10^6 pairs), each run by its own process on state in shared memory (a CPU launch runs on one
-    core): the part in this process and the others in :class:`~warp_regdist.processes.WorkerPool`
+    core): the part in this process and the others in :class:`~warp_regdist.solvers.processes.WorkerPool`
     workers meet three times per iteration. Every sum that decides the iteration is made per
     column or per consensus tile row, so the iterates do not depend on the split.
     """

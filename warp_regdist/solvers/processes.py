@@ -9,7 +9,7 @@ crashed ``all_pairs`` under load). So the solvers use more cores through process
   script is never re-imported, whatever its ``__main__`` guard), each of which builds one
   object ``factory(*args, index)`` and then runs the method calls the parent sends it over a
   pipe. The workers live in their own session: a Ctrl-C in the terminal reaches the parent
-  only, which decides what it means (see :mod:`warp_regdist.interrupt`) and raises the
+  only, which decides what it means (see :mod:`warp_regdist.solvers.interrupt`) and raises the
   workers' shared stop flag. A worker exits within a fraction of a second of its parent's
   death, however the parent died (SIGKILL, SIGTERM, the out-of-memory killer): a watchdog
   thread compares its parent's pid with the one it was started by. A worker that dies makes

@@ -1,7 +1,7 @@
 """One batched single-source ADMM on the device (Algorithm 1; docs/method.md sections 4 and 8):
 its arrays (:class:`Workspace`), the stopping rule's constants the device test reads
 (:class:`DeviceRule`), the iteration as recorded launches replayed as one Warp graph
-(:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.admm.run_iterations`
+(:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.solvers.admm.run_iterations`
 (:class:`BatchIterations`)."""
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def _max_ratio(a, b):
 
 
 class BatchIterations:
-    """One batched single-source ADMM as the problem of :func:`~warp_regdist.admm.run_iterations`.
+    """One batched single-source ADMM as the problem of :func:`~warp_regdist.solvers.admm.run_iterations`.
 
     ``status`` reads the device's per-lane flags, collects the columns whose test first held
     (frozen on the device at that iterate) and reports progress; ``advance`` compacts the batch

@@ -115,7 +115,7 @@ class DistanceSolver:
         least 10^5 vertices x source sets (a worker takes a few seconds to start). Ignored on
         CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it:
         the workers receive this solver's multigrid hierarchy instead of building their own.
-    hierarchy : warp_regdist.multigrid.Hierarchy or None
+    hierarchy : warp_regdist.solvers.multigrid.Hierarchy or None
         A multigrid hierarchy of this mesh's stiffness matrix W_D to reuse (e.g. a solver's
         ``hierarchy`` of the same mesh at another alpha_hat); None: built here.
 
