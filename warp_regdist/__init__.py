@@ -6,7 +6,7 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 
 from . import _moved, metrics
 from .solvers.admm import PenaltySchedule
-from .solvers.all_pairs_admm import AllPairsResult, all_pairs
+from .solvers.all_pairs_admm import all_pairs
 from .output.export import save_vtu
 from .geometry.line_field import line_field
 from .errors import ConvergenceWarning, MeshError, WorkerError
@@ -14,7 +14,8 @@ from .geometry.mesh import Mesh, boundary_vertices
 from .geometry.mesh_io import data_path, load_mesh
 from .geometry.operators import Operators, build_operators
 from .geometry.regularizers import REGULARIZERS
-from .solvers.solver import DistanceResult, DistanceSolver
+from .solvers.results import AllPairsResult, DistanceResult
+from .solvers.solver import DistanceSolver
 from .matrices.source_rows import distance_matrix
 from .geometry.tetrahedralize import tetrahedralize
 from .tolerances import Tolerances, tolerances

@@ -51,7 +51,7 @@ def add_parser(sub, solver_options) -> None:
 def _allpairs_progress():
     """A progress callback for ``all_pairs`` printing one stderr line per ~2 s (and the last
     iteration): iteration, the seven residuals / their tolerances, elapsed time, memory."""
-    from ..solvers.all_pairs_admm import RESIDUAL_NAMES
+    from ..solvers.results import RESIDUAL_NAMES
 
     last = [-10.0]
 

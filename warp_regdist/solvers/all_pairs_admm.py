@@ -52,7 +52,6 @@ import time
 import warnings
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
@@ -67,37 +66,10 @@ from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, toleranc
 from ..geometry.mesh import Mesh
 from ..geometry.operators import build_operators
 from ..tolerances import tolerances
+from .results import AllPairsResult
 
-__all__ = ["all_pairs", "AllPairsResult", "RESIDUAL_NAMES"]
+__all__ = ["all_pairs"]
 
-RESIDUAL_NAMES = ("r1", "r2", "s1", "s2", "rx1", "rx2", "sx")
-"""The seven residuals of docs/method.md section 5, in the order of ``AllPairsResult.residuals``."""
-
-
-class AllPairsResult(OptimizeResult):
-    """Result of :func:`all_pairs`.
-
-    Attributes
-    ----------
-    distance : (n, n) ndarray of float64
-        Exactly symmetric, zero diagonal, non-negative.
-    iterations : int
-    converged : bool
-        True when all seven residuals met their tolerances and the last change test held
-        (``eps_change``) before ``max_iterations``.
-    residuals, tolerance : (7,) ndarray
-        Final residuals (r1, r2, s1, s2, rx1, rx2, sx) and their tolerances.
-    history : (iterations, 7) ndarray
-        Residuals divided by their tolerances at every iteration.
-    change : float
-        The change of U still to come estimated at the last change test, in units of max U
-        (inf before the third test, or while the change grows; see ``eps_change``).
-    cg_iterations : int
-        PCG iterations summed over ADMM iterations (the largest count among the worker processes).
-    seconds : float
-    memory_bytes : int
-        Estimated footprint of the solver's arrays (device and host).
-    """
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, eps_rel=None,
               eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, progress=None,

@@ -7,17 +7,19 @@ its arrays (:class:`Workspace`), the stopping rule's constants the device test r
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import (DONE, EPS_DUAL, EPS_PRI, IT_OUT, LANE_ROWS, R_LAST, R_OUT, RHO_OUT, S_LAST,
-                                     S_OUT, single_source_kernels)
+from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
+                                     R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT, single_source_kernels)
 from ..kernels.lanes import lane_kernels, row_dim, thread_span
+from .stopping import tolerance
 
-__all__ = ["Workspace", "DeviceRule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
+__all__ = ["Workspace", "DeviceRule", "device_rule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
 
 CAPTURE = True
 """On the CPU, replay each batch's iteration as one captured Warp graph (False: the same recorded
@@ -72,6 +74,36 @@ class DeviceRule:
     shift: float
     scale: float
     length: float
+
+
+def device_rule(solver, tol, free):
+    """The :class:`DeviceRule` of a batch of ``solver`` under ``tol`` and the initial per-lane rows
+    (LANE_ROWS, slots) of its test; ``free`` (n, slots) is 1 on each column's free vertices.
+
+    Per slot the dual test's floor eps_abs sqrt(n_free) A and load |mask A_V|: the dual residual
+    is measured against max(|mask D y|, |mask A_V|), since at the optimum A_V = alpha W u + D y on
+    the free vertices and y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat,
+    boundary sources on a coarse mesh, a smooth Hessian-regularized u), so |D y| alone can
+    vanish and a test relative to it never holds.
+    """
+    ops, factor = solver.operators, solver.regularizer.tolerance_factor
+    L, A, m = ops.length_scale, ops.total_volume, solver.mesh.n_elements
+    eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
+    eps_dual_abs = np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A
+    load_norm = np.sqrt(np.square(ops.vertex_volumes) @ free)
+    lane = np.zeros((LANE_ROWS, free.shape[1]))
+    lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
+    lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, tolerance(eps_dual_abs, eps_rel_dual, load_norm)
+    # the u-step's right-hand side is divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
+    shift, scale = (solver.alpha, 1.0) if solver._scaled else (1.0, 0.0)
+    rule = DeviceRule(
+        eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
+        eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
+        # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
+        # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
+        cg_primal=tol.cg_primal_fraction * L ** (0.5 * solver.mesh.element_dim - 1.0),
+        alpha=solver.alpha, shift=shift, scale=scale, length=L)
+    return rule, lane
 
 
 def collect(ws, frozen, slots, cols, out, y_out):

@@ -20,16 +20,13 @@ alpha W_H + rho W_D saved < 25%).
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import warnings
 
 import numpy as np
 import warp as wp
-from scipy.optimize import OptimizeResult
 
-from ..kernels.single_source import (CG_TOTAL, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, LANE_ROWS, LOAD_NORM, R_LAST,
-                                     RHO_LAST, S_LAST)
+from ..kernels.single_source import CG_TOTAL, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
 from ..kernels.lanes import SCALARS, lane_type, lane_width
 from ..geometry.mesh import Mesh
 from .multigrid import Hierarchy, smoothed_aggregation
@@ -41,39 +38,11 @@ from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from ..arguments import check_weight, parse_device, parse_workers
 from ..errors import ConvergenceWarning
 from ..geometry.regularizers import build_regularizer
-from .stopping import tolerance
-from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, DeviceRule, Workspace, collect, lanes
+from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from ..tolerances import tolerances
+from .results import DistanceResult
 
-__all__ = ["DistanceSolver", "DistanceResult"]
-
-
-class DistanceResult(OptimizeResult):
-    """Result of :meth:`DistanceSolver.solve` (scalars) or :meth:`DistanceSolver.solve_many` (per column).
-
-    Attributes
-    ----------
-    distance : (n,) or (n, k) ndarray of float64
-        Regularized distance; 0 on the sources, +inf on vertices no source can reach
-        (other connected components, vertices referenced by no element).
-    iterations : int or (k,) ndarray of int
-        ADMM iterations until the stopping test held.
-    converged : bool or (k,) ndarray of bool
-    primal_residual, dual_residual : float or (k,) ndarray
-        Final r = |sqrt(M_F)(G u - z)| and s = rho |D (z - z_old)|.
-    cg_iterations : int
-        PCG iterations summed over ADMM iterations (shared by all columns of a batch).
-    seconds : float
-        Wall time of the solve.
-    interrupted : bool
-        True when Ctrl-C stopped the solve: the columns not yet converged hold their current
-        iterate and ``converged`` False.
-    duals : (m, 3) or (m, 3, k) ndarray of float64
-        The per-element multipliers y of the gradient constraint at the returned iterate (always
-        from :meth:`DistanceSolver.solve`, from :meth:`~DistanceSolver.solve_many` with
-        ``keep_duals=True``); with ``penalty`` (rho / L, float or (k,)) they make the result a
-        warm start (``initial=``).
-    """
+__all__ = ["DistanceSolver"]
 
 
 _CHECK_EVERY = {False: 1, True: 10}
@@ -379,13 +348,10 @@ class DistanceSolver:
         """
         t0 = time.perf_counter()
         tol = tolerances if tol is None else tol
-        factor = self.regularizer.tolerance_factor
         k = len(sets)
-        n, m = self.mesh.n_vertices, self.mesh.n_elements
+        n = self.mesh.n_vertices
         nb = ws.u.shape[1]
         W = ws.width
-        # u-step right-hand side divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
-        shift, scale = (self.alpha, 1.0) if self._scaled else (1.0, 0.0)
 
         # Slot j (lane j % W of block j // W) holds column slot_col[j] of the batch, -1 when it is
         # free: padding, or a column already collected (its lane still computes).
@@ -399,7 +365,6 @@ class DistanceSolver:
         for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "step"):
             getattr(ws, name).zero_()
         L = self.operators.length_scale
-        A = self.operators.total_volume
         if schedule is None:
             schedule = PenaltySchedule.single_source(tol, self.regularizer.rho_factors, L)
         # iteration it runs with rho = schedule.rho(it + offset); a warm start continues the
@@ -417,26 +382,9 @@ class DistanceSolver:
         if keep_duals and ws.y_out is None:
             ws.y_out = wp.zeros_like(ws.y)
 
-        eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
-        # per slot: (eps_abs sqrt(n_free) A, |mask A_V|). The dual residual is measured against
-        # max(|mask D y|, |mask A_V|): at the optimum A_V = alpha W u + D y on the free vertices,
-        # and y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat, boundary sources
-        # on a coarse mesh, a smooth Hessian-regularized u), so |D y| alone can vanish and a
-        # test relative to it never holds.
-        eps_dual_abs = np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A
-        load_norm = np.sqrt(np.square(self.operators.vertex_volumes) @ free)
-        lane = np.zeros((LANE_ROWS, nb * W))
-        lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
-        lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, tolerance(eps_dual_abs, eps_rel_dual, load_norm)
+        rule, lane = device_rule(self, tol, free)
         ws.lane.assign(lane.reshape(LANE_ROWS, nb, W))
         ws.pcg.configure(tol.cg_rtol, tol.cg_max_iterations)
-        rule = DeviceRule(
-            eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
-            eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
-            # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
-            # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
-            cg_primal=tol.cg_primal_fraction * L ** (0.5 * self.mesh.element_dim - 1.0),
-            alpha=self.alpha, shift=shift, scale=scale, length=L)
         batch = ColumnBatch(self, ws, W, nb, tol.change_window, rule, tol.relaxation)
         run = BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
         it, reason = run_iterations(run, 0, tol.max_iterations, _CHECK_EVERY[self.device.is_cuda])
