@@ -16,7 +16,7 @@ import argparse
 import sys
 
 from . import allpairs, demo, distance, matrix, view, volume
-from .common import EXIT_STATUS, PROG, solver_options
+from .common import EXIT_STATUS, PROG
 
 __all__ = ["main"]
 
@@ -37,7 +37,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in SUBCOMMANDS.values():
-        module.add_parser(sub, solver_options)
+        module.add_parser(sub)
     return parser
 
 

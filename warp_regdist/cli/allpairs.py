@@ -8,17 +8,15 @@ import sys
 
 import numpy as np
 
-from .common import EXIT_STATUS, check_output, load, warn, warnings_to_stderr
+from .common import check_output, load, solver_options, subcommand, warn, warnings_to_stderr
 
 
-def add_parser(sub, solver_options) -> None:
-    allpairs = sub.add_parser(
-        "allpairs",
+def add_parser(sub) -> None:
+    allpairs = subcommand(
+        sub, "allpairs",
         help="symmetric all-pairs distance matrix (n x n), written as .npy",
         description="All-pairs regularized distance matrix on a connected triangle mesh (Algorithm 2,\n"
         "symmetric by construction), written as an (n, n) float64 .npy; progress on stderr.",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     allpairs.add_argument("mesh", metavar="MESH", help="triangle mesh file (.obj, .off, .ply, .stl)")
     allpairs.add_argument(

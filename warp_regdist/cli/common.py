@@ -28,6 +28,12 @@ exit status:
 """
 
 
+def subcommand(sub, name: str, help: str, description: str) -> argparse.ArgumentParser:
+    """A subcommand's parser, with the exit-status epilog and the description's line breaks kept."""
+    return sub.add_parser(name, help=help, description=description, epilog=EXIT_STATUS,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
 def solver_options(p: argparse.ArgumentParser) -> None:
     """--device, --dtype, --quiet."""
     p.add_argument(

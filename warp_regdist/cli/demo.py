@@ -8,17 +8,15 @@ import os
 
 import numpy as np
 
-from .common import DEMO_ALPHA_HAT, DEMO_SOURCE, EXIT_STATUS, load, solve, summary
+from .common import DEMO_ALPHA_HAT, DEMO_SOURCE, load, solve, solver_options, subcommand, summary
 
 
-def add_parser(sub, solver_options) -> None:
-    demo = sub.add_parser(
-        "demo",
+def add_parser(sub) -> None:
+    demo = subcommand(
+        sub, "demo",
         help="solve on the shipped spot cow and write distance.npy and distance.png",
         description=f"Solve from vertex {DEMO_SOURCE} of the spot cow (4764 vertices, shipped with\n"
         f"the package) at alpha_hat {DEMO_ALPHA_HAT}; write distance.npy and distance.png.",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     demo.add_argument(
         "--output",

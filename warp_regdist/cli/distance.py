@@ -5,19 +5,17 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import (DEMO_ALPHA_HAT, EXIT_STATUS, OUTPUT_EXTENSIONS, check_output, load, parse_sources, solve,
-                     summary, write_values)
+from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, load, parse_sources, solve, solver_options,
+                     subcommand, summary, write_values)
 
 
-def add_parser(sub, solver_options) -> None:
-    distance = sub.add_parser(
-        "distance",
+def add_parser(sub) -> None:
+    distance = subcommand(
+        sub, "distance",
         help="regularized distance on a mesh file, written as .npy, .csv or .vtu",
         description="Regularized geodesic distance from a set of source vertices on a triangle\n"
         "mesh (OBJ, OFF, PLY or STL) or a tetrahedral mesh (gmsh .msh, .vtk, .vtu, Medit\n"
         ".mesh); vertex order as in the file.",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     distance.add_argument(
         "mesh",

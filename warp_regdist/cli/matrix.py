@@ -10,19 +10,17 @@ import sys
 
 import numpy as np
 
-from .common import DEMO_ALPHA_HAT, EXIT_STATUS, PROG, check_output, load, warnings_to_stderr
+from .common import DEMO_ALPHA_HAT, PROG, check_output, load, solver_options, subcommand, warnings_to_stderr
 
 
-def add_parser(sub, solver_options) -> None:
-    matrix = sub.add_parser(
-        "matrix",
+def add_parser(sub) -> None:
+    matrix = subcommand(
+        sub, "matrix",
         help="distance matrix of single-source rows, written block by block to .zarr or .npy (resumable)",
         description="Rows of regularized distances from many source vertices (batched single-source\n"
         "solves), written block by block to a Zarr array or a .npy file, never all in memory; the\n"
         "same command run again resumes (blocks already written are skipped). With --workers or\n"
         "--scheduler the blocks are tasks on a Dask cluster (pip install 'warp-regdist[distributed]').",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     matrix.add_argument("mesh", metavar="MESH", help="triangle or tetrahedral mesh file")
     matrix.add_argument(

@@ -7,18 +7,16 @@ import os
 
 import numpy as np
 
-from .common import EXIT_STATUS, load, parse_sources
+from .common import load, parse_sources, subcommand
 
 
-def add_parser(sub, solver_options) -> None:
-    view = sub.add_parser(
-        "view",
+def add_parser(sub) -> None:
+    view = subcommand(
+        sub, "view",
         help="show per-vertex values on a mesh in an interactive window (polyscope)",
         description="Show a .npy of per-vertex values ((n,) or (n, k): k fields side by side) on a mesh\n"
         "in a polyscope window, as a colour map with isolines, sources marked, a slice plane\n"
         "for tetrahedra. Needs pip install 'warp-regdist[view]'.",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     view.add_argument("mesh", metavar="MESH", help="the mesh the values belong to")
     view.add_argument("values", metavar="VALUES", help=".npy file of per-vertex values, (n,) or (n, k)")

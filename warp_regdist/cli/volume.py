@@ -8,19 +8,18 @@ import sys
 
 import numpy as np
 
-from .common import DEMO_ALPHA_HAT, EXIT_STATUS, LISTED_SOURCES, check_output, load, parse_sources, solve, summary
+from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, load, parse_sources, solve, solver_options,
+                     subcommand, summary)
 
 
-def add_parser(sub, solver_options) -> None:
-    volume = sub.add_parser(
-        "volume",
+def add_parser(sub) -> None:
+    volume = subcommand(
+        sub, "volume",
         help="tetrahedralize a closed surface, then the distance inside it (.vtu, optional grid)",
         description="Fill a closed triangle surface (STL, OBJ, OFF, PLY) with tetrahedra (TetGen,\n"
         "pip install 'warp-regdist[volume]'), solve the regularized distance inside from the\n"
         "boundary or from points, write it per vertex (.vtu) and optionally sampled on a regular\n"
         "grid (NaN outside the solid) for SDF-like use.",
-        epilog=EXIT_STATUS,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     volume.add_argument("surface", metavar="SURFACE", help="closed triangle surface (.stl, .obj, .off, .ply)")
     volume.add_argument(
