@@ -19,7 +19,7 @@ import types
 
 import warp as wp
 
-from .element_core import DY2, G2, R2, S2, Z2, element_funcs
+from .element_core import DY2, S2, element_funcs
 from .lanes import chunk_rows, group_blocks, lane_type
 
 # Entries of the scalar accumulator (5,) of the consensus step, weighted by A_V[i] A_V[j].
@@ -37,7 +37,7 @@ def all_pairs_kernels(scalar, W):
     zero = scalar(0.0)
     half = scalar(0.5)
     f = element_funcs(scalar, W)
-    element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
+    element_gradient, project, element_sums, add_sums = f.element_gradient, f.project, f.element_sums, f.add_sums
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -83,9 +83,7 @@ def all_pairs_kernels(scalar, W):
                 r2 += dr2
                 g2 += dg2
                 z2 += dz2
-            wp.atomic_add(acc, R2, b, r2)
-            wp.atomic_add(acc, G2, b, g2)
-            wp.atomic_add(acc, Z2, b, z2)
+            add_sums(acc, b, r2, g2, z2)
 
     @wp.kernel(enable_backward=False, module=module)
     def vertex_step(vertex_vol: wp.array(dtype=scalar), mask: wp.array2d(dtype=V), rho: scalar, rho2: scalar,

@@ -63,5 +63,12 @@ def element_funcs(scalar, W):
         """Per lane the element's terms of the residual sums: a |g - z|^2, a |g|^2, a |z|^2 (rows R2, G2, Z2)."""
         return a * norm2(gx - zx, gy - zy, gz - zz), a * norm2(gx, gy, gz), a * norm2(zx, zy, zz)
 
+    @wp.func(module=module)
+    def add_sums(acc: wp.array2d(dtype=V), b: int, r2: V, g2: V, z2: V):
+        """Add a thread's element sums of block b to the accumulator rows R2, G2, Z2."""
+        wp.atomic_add(acc, R2, b, r2)
+        wp.atomic_add(acc, G2, b, g2)
+        wp.atomic_add(acc, Z2, b, z2)
+
     return types.SimpleNamespace(element_gradient=element_gradient, ball_scale=ball_scale, norm2=norm2,
-                                 project=project, element_sums=element_sums)
+                                 project=project, element_sums=element_sums, add_sums=add_sums)

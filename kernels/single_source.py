@@ -36,7 +36,7 @@ def single_source_kernels(scalar, W, k):
     one = scalar(1.0)
     zero = scalar(0.0)
     f = element_funcs(scalar, W)
-    element_gradient, project, element_sums = f.element_gradient, f.project, f.element_sums
+    element_gradient, project, element_sums, add_sums = f.element_gradient, f.project, f.element_sums, f.add_sums
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
@@ -79,9 +79,7 @@ def single_source_kernels(scalar, W, k):
                 r2 += dr2
                 g2 += dg2
                 z2 += dz2
-            wp.atomic_add(acc, R2, b, r2)
-            wp.atomic_add(acc, G2, b, g2)
-            wp.atomic_add(acc, Z2, b, z2)
+            add_sums(acc, b, r2, g2, z2)
 
     @wp.kernel(enable_backward=False, module=module)
     def vertex_divergence(offsets: wp.array(dtype=wp.int32), incident: wp.array(dtype=wp.int32),
