@@ -193,7 +193,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
                          "(solve each component separately)")
     fingerprint = problem_fingerprint(mesh, alpha_hat, dtype, chosen["rho2_factor"])
-    L = build_operators(mesh).length_scale
+    ops = build_operators(mesh)  # once: for the schedule's scale and the state's setup
+    L = ops.length_scale
     schedule = PenaltySchedule.all_pairs(tol, L) if schedule is None else schedule
     settings = PairsSettings(eps_abs=tol.eps_abs, change_window=tol.pairs_change_window, relaxation=tol.relaxation,
                              cg_rtol=tol.cg_rtol, cg_max_iterations=tol.cg_max_iterations,
@@ -214,7 +215,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
         if saved is not None and "final" in saved:
             return _final_result(saved, memory, checkpoint)
         state = stack.enter_context(contextlib.closing(
-            SymmetricADMM(mesh, alpha_hat, dev, dtype, settings, workers, auto_workers)))
+            SymmetricADMM(mesh, ops, alpha_hat, dev, dtype, settings, workers, auto_workers)))
         run = _Run(state, settings, schedule, memory, max_iterations, progress,
                    Checkpointing(checkpoint, checkpoint_seconds, fingerprint))
         if saved is not None:

@@ -16,7 +16,6 @@ from ..kernels.all_pairs import all_pairs_kernels
 from ..kernels.element_core import DY2, G2, R2, S2, Z2
 from ..kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
 from .multigrid import smoothed_aggregation
-from ..geometry.operators import build_operators
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 
@@ -91,10 +90,9 @@ def _even_splits(weights, parts):
 class _Setup:
     """Host data that every part of the iteration needs (pickled to the worker processes)."""
 
-    def __init__(self, mesh, alpha_hat, dtype, settings, parts):
+    def __init__(self, mesh, ops, alpha_hat, dtype, settings, parts):
         self.n, self.m = mesh.n_vertices, mesh.n_elements
         self.dtype = dtype
-        ops = build_operators(mesh)
         self.elements = mesh.elements.astype(np.int32)
         self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
         self.divergence = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()  # D = G^T M_F
@@ -210,13 +208,13 @@ class SymmetricADMM:
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
-    def __init__(self, mesh, alpha_hat, device, dtype, settings, workers, auto_workers=False):
+    def __init__(self, mesh, ops, alpha_hat, device, dtype, settings, workers, auto_workers=False):
         n = mesh.n_vertices
         nb = -(-n // lane_width(SCALARS[dtype], n))
         parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
         if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
             parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(mesh, alpha_hat, dtype, settings, parts)
+        self.setup = setup = _Setup(mesh, ops, alpha_hat, dtype, settings, parts)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:n] = setup.vertex_volumes
