@@ -262,22 +262,27 @@ def test_cli_volume_spot_depth(tmp_path, capsys):
     assert spacing == pytest.approx(np.ptp(read.points, axis=0).max() / 23)
 
 
-def test_cli_volume_point_sources_are_snapped(tmp_path, capsys):
+def test_cli_volume_point_sources_are_vertices(tmp_path, capsys):
+    """Points near the surface are inserted into it before TetGen: u = 0 exactly there, nowhere else."""
     V, F = _sphere(2)
     trimesh.Trimesh(V, F, process=False).export(tmp_path / "ball.stl")
-    (tmp_path / "points.csv").write_text("# x,y,z\n0.01,0,0\n0,0,0.98\n")
+    points = np.array([[0.3, 0.2, 0.95], [0.0, -0.99, 0.05]])
+    (tmp_path / "points.csv").write_text("# x,y,z\n" + "\n".join(",".join(str(float(x)) for x in p) for p in points) + "\n")
     out = tmp_path / "u.vtu"
     code = main(["volume", str(tmp_path / "ball.stl"), "--sources", str(tmp_path / "points.csv"),
-                 "--output", str(out), "--max-volume", "0.05", "--quiet"])
+                 "--output", str(out), "--max-volume", "0.05"])
     assert code == 0, capsys.readouterr().err
+    assert "2 surface points, vertices 162, 163 (moved onto the surface by at most" in capsys.readouterr().out
     read = meshio.read(out)
     u = read.point_data["distance"]
-    nearest = [np.argmin(np.linalg.norm(read.points - p, axis=1)) for p in ([0.01, 0, 0], [0, 0, 0.98])]
-    assert np.all(u[nearest] == 0.0) and np.all(u[np.setdiff1d(np.arange(len(u)), nearest)] > 0.0)
-    code = main(["volume", str(tmp_path / "ball.stl"), "--sources", str(tmp_path / "points.csv"),
-                 "--output", str(out), "--max-volume", "0.05"])
-    assert code == 0
-    assert "2 points snapped to the nearest vertices" in capsys.readouterr().out
+    zero = np.flatnonzero(u == 0.0)
+    candidates = [trimesh.triangles.closest_point(V[F], np.repeat(p[None], len(F), axis=0)) for p in points]
+    expected = [c[np.argmin(np.linalg.norm(c - p, axis=1))] for c, p in zip(candidates, points)]
+    assert zero.tolist() == [162, 163] and np.allclose(read.points[zero], expected, atol=1e-12)
+    (tmp_path / "far.csv").write_text("0,0,0\n")
+    code = main(["volume", str(tmp_path / "ball.stl"), "--sources", str(tmp_path / "far.csv"), "--output", str(out)])
+    assert code == 2
+    assert "expected points within 0.1" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -64,6 +64,10 @@ class Tolerances:
     degenerate_element : float
         An element whose area (volume) is <= this times its longest edge squared (cubed)
         is refused as degenerate.
+    point_snap : float
+        A source point whose barycentric coordinate on a face is <= this lies on that face's
+        edge (or vertex, when 1 - point_snap <= its largest coordinate) and is moved there:
+        the triangles it would cut off would be slivers (see warp_regdist.surface_points).
     max_gradient : float
         A result whose gradient exceeds this on some element is reported as not converged,
         with a warning (the constraint is |G u| <= 1, which converged results meet to about
@@ -94,6 +98,7 @@ class Tolerances:
     pairs_eps_change: float = 3e-3
     pairs_change_window: int = 50
     degenerate_element: float = 1e-12
+    point_snap: float = 1e-3
     max_gradient: float = 1.5
 
     def __getattr__(self, name):

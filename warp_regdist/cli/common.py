@@ -64,6 +64,30 @@ def check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
         raise ValueError(f"expected {option} in a writable place, got {path!r} (permission denied)")
 
 
+def read_xyz(path: str, option: str) -> np.ndarray:
+    """(k, 3) points from the rows 'x,y,z' of a .csv file given to ``option``."""
+    from ..arguments import read_csv_rows
+
+    if not os.path.isfile(path):
+        raise ValueError(f"expected {option} as an existing .csv file of 'x,y,z' rows, got {path!r} (no such file)")
+    points = read_csv_rows(path, "x,y,z", option)
+    if not np.isfinite(points).all():
+        raise ValueError(f"expected finite {option} coordinates, got NaN or inf in {path!r}")
+    return points
+
+
+def parse_surface_points(path: str, mesh, option: str) -> tuple[list, str]:
+    """Surface points [(face, barycentric)] of the rows of a .csv file and their description."""
+    from .. import surface_points
+
+    xyz = read_xyz(path, option)
+    if mesh.element_dim != 2:
+        raise ValueError(f"expected a triangle mesh for {option} given as points ({path!r}), got a tetrahedral mesh "
+                         "(give vertex indices)")
+    points, moved = surface_points(mesh, xyz, return_distance=True)
+    return points, f"{len(points)} surface points of {os.path.basename(path)} (moved onto the surface by at most {moved.max():.3g})"
+
+
 def parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
     """Source vertex indices (s,) and their description for the summary."""
     from .. import boundary_vertices
@@ -116,10 +140,11 @@ def warnings_to_stderr(reported_by_caller=()):
 
 
 def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
-           **regularization):
+          where=None, **regularization):
     """Solve once; returns (solver, result), reporting non-convergence on stderr
-    (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``regularization``:
-    the DistanceSolver keywords regularizer, beta_hat, vector_field."""
+    (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``where``: the
+    DistanceSolver.solve keywords points, curve, closed; ``regularization``: the DistanceSolver
+    keywords regularizer, beta_hat, vector_field."""
     import warp as wp
 
     from .. import ConvergenceWarning, DistanceSolver
@@ -127,7 +152,7 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
     wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
-        result = solver.solve(sources, verbose=verbose)
+        result = solver.solve(sources, verbose=verbose, **(where or {}))
     if result.interrupted:
         warn(f"interrupted at ADMM iteration {result.iterations}: the distance written is the current iterate")
     elif not result.converged:

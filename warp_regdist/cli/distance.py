@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, load, parse_sources, solve, solver_options,
-                     subcommand, summary, write_values)
+from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, load, parse_sources, parse_surface_points, solve,
+                     solver_options, subcommand, summary, write_values)
 
 
 def add_parser(sub) -> None:
     distance = subcommand(
         sub, "distance",
         help="regularized distance on a mesh file, written as .npy, .csv or .vtu",
-        description="Regularized geodesic distance from a set of source vertices on a triangle\n"
+        description="Regularized geodesic distance from a set of source vertices, points or a curve on a triangle\n"
         "mesh (OBJ, OFF, PLY or STL) or a tetrahedral mesh (gmsh .msh, .vtk, .vtu, Medit\n"
         ".mesh); vertex order as in the file.",
     )
@@ -24,10 +24,22 @@ def add_parser(sub) -> None:
     )
     distance.add_argument(
         "--sources",
-        required=True,
         metavar="LIST",
-        help="comma-separated 0-based vertex indices (e.g. 2272,17), or 'boundary' for all "
-        "boundary vertices",
+        help="comma-separated 0-based vertex indices (e.g. 2272,17), 'boundary' for all "
+        "boundary vertices, or a .csv file of 'x,y,z' rows: points moved to the closest surface "
+        "point (within 5%% of the bounding box diagonal) and inserted into the mesh",
+    )
+    distance.add_argument(
+        "--curve",
+        metavar="FILE",
+        help="a .csv file of 'x,y,z' rows: a polyline through the closest surface points, running "
+        "between consecutive points along the section of the surface by a plane; u = 0 along it",
+    )
+    distance.add_argument(
+        "--closed",
+        action="store_true",
+        help="the --curve returns to its first point; writes the signed distance (negative on the "
+        "curve's left, seen from outside)",
     )
     distance.add_argument(
         "--alpha-hat",
@@ -98,17 +110,32 @@ def run(args: argparse.Namespace) -> None:
     check_output(args.output, OUTPUT_EXTENSIONS, "--output")
     if args.png is not None:
         check_output(args.png, (".png",), "--png")
+    if args.sources is None and args.curve is None:
+        raise ValueError("expected --sources or --curve, got neither")
+    if args.closed and args.curve is None:
+        raise ValueError("expected --closed with a --curve, got no --curve")
     mesh = load(args.mesh)
-    sources, described = parse_sources(args.sources, mesh)
+    sources, where, described = None, {}, []
+    if args.sources is not None and args.sources.lower().endswith(".csv"):
+        where["points"], text = parse_surface_points(args.sources, mesh, "--sources")
+        described.append(text)
+    elif args.sources is not None:
+        sources, text = parse_sources(args.sources, mesh)
+        described.append(text)
+    if args.curve is not None:
+        where["curve"], text = parse_surface_points(args.curve, mesh, "--curve")
+        where["closed"] = args.closed
+        described.append(("the closed curve through " if args.closed else "the curve through ") + text)
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
-                            **_regularization(args, mesh))
+                           where=where, **_regularization(args, mesh))
+    values = result.signed_distance if args.closed else result.distance
     if args.output.lower().endswith(".vtu"):
-        save_vtu(args.output, mesh, {"distance": result.distance})
+        save_vtu(args.output, mesh, {"signed_distance" if args.closed else "distance": values})
     else:
-        write_values(args.output, result.distance)
+        write_values(args.output, values)
     written = [args.output]
     if args.png is not None:
-        marked = None if args.sources.strip().lower() == "boundary" else sources
+        marked = sources if args.sources is not None and args.sources.strip().lower() != "boundary" else None
         name = os.path.basename(args.mesh)
         title = f"{name}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
         if mesh.element_dim == 3:
@@ -117,4 +144,4 @@ def run(args: argparse.Namespace) -> None:
             render_distance(mesh, result.distance, args.png, sources=marked, title=title)
         written.append(args.png)
     if not args.quiet:
-        print(summary(os.path.basename(args.mesh), mesh, described, solver, result, written))
+        print(summary(os.path.basename(args.mesh), mesh, " and ".join(described), solver, result, written))

@@ -8,8 +8,17 @@ import sys
 
 import numpy as np
 
-from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, load, parse_sources, solve, solver_options,
-                     subcommand, summary)
+from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, load, parse_sources, read_xyz, solve,
+                     solver_options, subcommand, summary)
+
+
+def _insert_points(surface, xyz):
+    """The surface refined at the closest surface points of xyz (their vertices are kept by TetGen,
+    which numbers the surface's vertices first), and how far each point moved."""
+    from ..geometry.surface_points import check_surface_points, refine, surface_points
+
+    points, moved = surface_points(surface, xyz, return_distance=True)
+    return refine(surface, *check_surface_points(surface, points, "--sources")), moved
 
 
 def add_parser(sub) -> None:
@@ -26,8 +35,9 @@ def add_parser(sub) -> None:
         "--sources",
         required=True,
         metavar="boundary|FILE",
-        help="'boundary' (distance to the surface: depth) or a .csv file of rows 'x,y,z', each point "
-        "snapped to the nearest vertex of the tetrahedral mesh (said in the output)",
+        help="'boundary' (distance to the surface: depth) or a .csv file of rows 'x,y,z': points moved "
+        "to the closest surface point (within 5%% of the bounding box diagonal) and inserted into the "
+        "surface before it is tetrahedralized, so that each is a vertex of the tetrahedral mesh",
     )
     volume.add_argument("--alpha-hat", type=float, default=DEMO_ALPHA_HAT, metavar="A",
                         help="scale-invariant regularization weight >= 0; alpha = A volume^(1/3) (default: 0.05)")
@@ -51,24 +61,8 @@ def add_parser(sub) -> None:
     solver_options(volume)
 
 
-def _read_points(path: str) -> np.ndarray:
-    """(k, 3) points from the rows 'x,y,z' of a .csv file (--sources of ``volume``)."""
-    if not path.lower().endswith(".csv"):
-        raise ValueError(f"expected --sources 'boundary' or a .csv file of 'x,y,z' rows, got {path!r}")
-    if not os.path.isfile(path):
-        raise ValueError(f"expected --sources as an existing .csv file of 'x,y,z' rows, got {path!r} (no such file)")
-    from ..arguments import read_csv_rows
-
-    points = read_csv_rows(path, "x,y,z", "--sources")
-    if not np.isfinite(points).all():
-        raise ValueError(f"expected finite --sources coordinates, got NaN or inf in {path!r}")
-    return points
-
-
 def run(args: argparse.Namespace) -> None:
     import time
-
-    from scipy.spatial import cKDTree
 
     from ..output.export import save_vtu
     from ..output.render import render_cut
@@ -87,15 +81,19 @@ def run(args: argparse.Namespace) -> None:
             raise ValueError(f"expected --grid N >= 2, got {args.grid}")
     if args.max_edge is not None and not (np.isfinite(args.max_edge) and args.max_edge > 0):
         raise ValueError(f"expected --max-edge as a length > 0, got {args.max_edge}")
-    points = None if args.sources.strip().lower() == "boundary" else _read_points(args.sources)
+    if args.sources.strip().lower() != "boundary" and not args.sources.lower().endswith(".csv"):
+        raise ValueError(f"expected --sources 'boundary' or a .csv file of 'x,y,z' rows, got {args.sources!r}")
+    points = None if args.sources.strip().lower() == "boundary" else read_xyz(args.sources, "--sources")
     surface = load(args.surface)
+    if points is not None:
+        refined, moved = _insert_points(surface, points)
     name = os.path.basename(args.surface)
     say = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     say(f"{name}: tetrahedralizing {surface.n_vertices} vertices, {surface.n_elements} faces with TetGen...")
     start = time.perf_counter()
     try:
         max_edge = "auto" if args.max_edge is None else args.max_edge
-        mesh = tetrahedralize(surface, max_volume=args.max_volume, quality=args.quality, max_edge=max_edge,
+        mesh = tetrahedralize(surface if points is None else refined.mesh, max_volume=args.max_volume, quality=args.quality, max_edge=max_edge,
                               alpha_hat=args.alpha_hat)
     except ModuleNotFoundError as exc:
         raise ValueError(str(exc)) from None
@@ -111,12 +109,13 @@ def run(args: argparse.Namespace) -> None:
     if points is None:
         sources, described = parse_sources(args.sources, mesh)
     else:
-        moved, nearest = cKDTree(mesh.vertices).query(points)
-        sources = np.unique(nearest).astype(np.int64)
+        sources = np.unique(refined.point_vertices)
+        if not np.array_equal(mesh.vertices[sources], refined.mesh.vertices[sources]):
+            raise RuntimeError("TetGen renumbered the surface's vertices: the point sources are lost")
         listed = ", ".join(str(s) for s in sources[:LISTED_SOURCES])
         more = f", ... ({sources.size} in all)" if sources.size > LISTED_SOURCES else ""
-        described = (f"{len(points)} points snapped to the nearest vertices {listed}{more} (moved by at most "
-                     f"{moved.max():.3g}; point sources do not exist yet)")
+        described = (f"{len(points)} surface points, vertices {listed}{more} (moved onto the surface by at most "
+                     f"{moved.max():.3g})")
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet)
     save_vtu(args.output, mesh, {"distance": result.distance})
     written = [args.output]

@@ -41,6 +41,7 @@ from ..geometry.regularizers import build_regularizer
 from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from ..tolerances import tolerances
 from .results import DistanceResult
+from .sources import solve_surface_sources, vertex_sources
 
 __all__ = ["DistanceSolver"]
 
@@ -139,35 +140,11 @@ class DistanceSolver:
                              f"{hierarchy.sizes[0] if isinstance(hierarchy, Hierarchy) else type(hierarchy).__name__}")
         self.hierarchy = hierarchy
         self._workspaces = {}
+        self._refined = None   # (key, the DistanceSolver of the latest refined mesh of points and curves)
 
-    # ------------------------------------------------------------------ input checks
     def _source_mask(self, sources, column):
         """Validated sources -> (indices (s,), reachable (n,) bool)."""
-        n = self.mesh.n_vertices
-        if isinstance(sources, (str, bytes)):
-            raise ValueError(f"expected source set {column} as vertex indices, got the string {sources!r}")
-        if not hasattr(sources, "__iter__") or isinstance(sources, np.ndarray) and sources.ndim == 0:
-            raise ValueError(f"expected source set {column} as a list of vertex indices, got {sources!r} "
-                             "(one vertex i is the set [i]; solve_many takes a list of such sets)")
-        try:
-            arr = np.asarray(list(sources) if not isinstance(sources, np.ndarray) else sources)
-        except (TypeError, ValueError):  # ragged nesting, non-iterable items
-            raise ValueError(f"expected source set {column} as a flat list of vertex indices, "
-                             f"got {repr(sources)[:80]}") from None
-        if arr.size == 0:
-            raise ValueError(f"expected at least one source vertex in source set {column}, got none")
-        if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or
-                                     (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)))):
-            raise ValueError(f"expected integer vertex indices in source set {column}, got {arr.ravel()[:5].tolist()}")
-        bad = arr[(arr < 0) | (arr >= n)]
-        if bad.size:
-            raise ValueError(f"expected source vertex indices in [0, {n - 1}] in source set {column}, got {bad.ravel()[0].item()!r}")
-        arr = arr.astype(np.int64).ravel()
-        labels = self._labels
-        comps = np.unique(labels[arr])
-        reachable = np.isin(labels, comps[comps >= 0])
-        reachable[arr] = True
-        return np.unique(arr), reachable
+        return vertex_sources(sources, column, self.mesh.n_vertices, self._labels)
 
     # ------------------------------------------------------------------ public API
     def _initial_state(self, initial, k):
@@ -197,8 +174,16 @@ class DistanceSolver:
                              f"{penalty!r} and {np.count_nonzero(~np.isfinite(y))} non-finite duals")
         return u, y, np.broadcast_to(penalty, (k,))
 
-    def solve(self, sources, verbose=False, initial=None, schedule=None):
-        """Distance from one source set (iterable of vertex indices); see :class:`DistanceResult`.
+    def solve(self, sources=None, verbose=False, initial=None, schedule=None, points=None, curve=None, closed=False):
+        """Distance from one source set; see :class:`DistanceResult`.
+
+        ``sources``: vertex indices. ``points``: surface points [(face, (b0, b1, b2)), ...] (e.g. from
+        :func:`~warp_regdist.surface_points`), sources at the points themselves. ``curve``: a polyline
+        of surface points, u = 0 all along it (``closed``: back to its first point, and the result
+        has ``signed_distance``, negative on the curve's left). Points and curves are inserted into a
+        refined mesh (triangle meshes; docs/method.md, "Sources anywhere"): ``distance`` is reported
+        on this mesh's vertices, ``refined_distance`` on ``refined_mesh``'s. Any of the three may be
+        combined; at least one is needed.
 
         ``initial``: a result of an earlier :meth:`solve` on this mesh (other sources or another
         solver's alpha_hat) to start from: its distance, duals and penalty. The answer is this
@@ -211,24 +196,38 @@ class DistanceSolver:
         of ``tolerances`` (rho0, rho_max, rho_doubling, in units of sqrt(A)). The answer is the
         same minimizer; the iterations needed change.
         """
-        res = self._solve_many([sources], verbose, initial, keep_duals=True, schedule=schedule)
+        def one(x):
+            return None if x is None else [x]
+
+        res = self._solve_many(one(sources), verbose, initial, True, schedule, one(points), one(curve), closed)
         for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty"):
             res[key] = res[key][0].item()
-        res["distance"] = res["distance"][:, 0]
+        for key in ("distance", "refined_distance", "signed_distance"):
+            if key in res:
+                res[key] = res[key][:, 0]
         res["duals"] = res["duals"][:, :, 0]
         return res
 
-    def solve_many(self, source_sets, verbose=False, initial=None, keep_duals=False, schedule=None):
+    def solve_many(self, source_sets=None, verbose=False, initial=None, keep_duals=False, schedule=None,
+                   points=None, curves=None, closed=False):
         """Distances from k source sets as one batched ADMM: ``distance`` is (n, k).
 
+        ``points``, ``curves``: k lists of surface points, k curves (see :meth:`solve`), one per
+        column, alone or with k ``source_sets``; all columns share one refined mesh.
         ``initial``: a result with k columns to start from (see :meth:`solve`); ``keep_duals``:
         return ``duals`` (m, 3, k) too, which makes the result a full warm start; ``schedule``:
         the penalty schedule of every column (see :meth:`solve`).
         """
-        return self._solve_many(source_sets, verbose, initial, keep_duals, schedule)
+        return self._solve_many(source_sets, verbose, initial, keep_duals, schedule, points, curves, closed)
 
-    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False, schedule=None):
+    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False, schedule=None, points=None,
+                    curves=None, closed=False):
         """The work of :meth:`solve_many`; its warnings name the caller of solve / solve_many."""
+        if points is not None or curves is not None or closed:
+            return solve_surface_sources(self, source_sets, points, curves, closed, verbose, initial, keep_duals,
+                                         schedule)
+        if source_sets is None:
+            raise ValueError("expected sources, points or a curve, got none")
         if isinstance(source_sets, (str, bytes)) or not hasattr(source_sets, "__iter__"):
             raise ValueError(f"expected a list of source sets, got {source_sets!r}")
         if schedule is not None:
@@ -305,6 +304,8 @@ class DistanceSolver:
         if self._pool is not None:
             self._pool.close()
             self._pool = None
+        if getattr(self, "_refined", None) is not None:
+            self._refined[1].close()
 
     def __enter__(self):
         return self

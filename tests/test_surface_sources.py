@@ -1,0 +1,229 @@
+"""Sources anywhere on a triangle mesh: points in faces and on edges, xyz points, curves.
+
+The refinement is checked geometrically (same surface, conforming, the point is a vertex);
+the solve on it against closed forms under refinement (flat disc, sphere equator) and against
+an independent conic solve of the refined problem (tests/reference_solver.py).
+"""
+
+import numpy as np
+import pytest
+
+import meshes
+import reference_solver as rs
+import warp_regdist as wrd
+from warp_regdist.geometry.surface_points import refine
+
+TIGHT = dict(eps_abs=1e-7, eps_rel=1e-5, eps_rel_dual=1e-3, eps_change=1e-6)
+
+
+def _sphere(subdivisions):
+    return wrd.Mesh(*meshes.icosphere(subdivisions))
+
+
+def _disk(rings):
+    V, F = meshes.disk(1.0, rings)
+    return wrd.Mesh(V, F)
+
+
+def _edges(F):
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    keys, counts = np.unique(e, axis=0, return_counts=True)
+    return {tuple(k): c for k, c in zip(keys.tolist(), counts)}
+
+
+def _mean_edge(mesh):
+    V, F = mesh.vertices, mesh.faces
+    return np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2).mean()
+
+
+# ---------------------------------------------------------------------- refinement
+def test_refinement_keeps_the_surface_and_conforms():
+    mesh = _sphere(2)
+    F = mesh.faces
+    faces = np.array([5, 5, 17, 40, 40])
+    bary = np.array([[0.2, 0.3, 0.5], [0.6, 0.2, 0.2], [0.5, 0.5, 0.0], [0.0, 0.25, 0.75], [1e-4, 0.5, 0.4999]])
+    R = refine(mesh, faces, bary)
+    V2, F2 = R.mesh.vertices, R.mesh.faces
+    assert np.array_equal(V2[:mesh.n_vertices], mesh.vertices)
+    assert R.mesh.element_volumes.sum() == pytest.approx(mesh.element_volumes.sum(), rel=1e-12)
+    # every refined face lies in the plane of its original face, with the same orientation
+    n0 = np.cross(mesh.vertices[F[:, 1]] - mesh.vertices[F[:, 0]], mesh.vertices[F[:, 2]] - mesh.vertices[F[:, 0]])
+    n2 = np.cross(V2[F2[:, 1]] - V2[F2[:, 0]], V2[F2[:, 2]] - V2[F2[:, 0]])
+    cos = np.einsum("ij,ij->i", n0[R.parent], n2) / np.linalg.norm(n0[R.parent], axis=1) / np.linalg.norm(n2, axis=1)
+    assert cos.min() > 1 - 1e-12
+    # closed and conforming: every edge in exactly two faces (a hanging vertex would leave edges in one)
+    assert set(_edges(F2).values()) == {2}
+    expected = np.einsum("pi,pij->pj", bary, mesh.vertices[F[faces]])
+    moved = np.linalg.norm(V2[R.point_vertices] - expected, axis=1)
+    assert moved[:4].max() < 1e-14 and np.allclose(R.displacement, moved)
+    # the last point is 1e-4 from an edge (below tolerances.point_snap): moved onto it
+    assert R.point_vertices[4] != R.point_vertices[3] and 0 < moved[4] < 1e-3 * _mean_edge(mesh)
+    assert R.mesh.n_vertices == mesh.n_vertices + 5
+
+
+def test_barycentric_corner_equals_the_vertex_solve():
+    mesh = wrd.load_mesh(wrd.data_path("spot_rr.off"))
+    solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)
+    face = int(np.flatnonzero((mesh.faces == 2272).any(axis=1))[0])
+    b = (mesh.faces[face] == 2272).astype(float)
+    vertex = solver.solve([2272]).distance
+    point = solver.solve(points=[(face, tuple(b))]).distance
+    assert np.abs(point - vertex).max() <= 1e-8 * vertex.max()
+    # a batch shares one refined mesh: column 0 is solved on the mesh refined at column 1's point
+    inside = solver.solve(points=[(face, (0.2, 0.3, 0.5))]).distance
+    many = solver.solve_many(points=[[(face, b)], [(face, (0.2, 0.3, 0.5))]])
+    assert many.distance.shape == (mesh.n_vertices, 2)
+    assert np.abs(many.distance[:, 1] - inside).max() <= 1e-6 * inside.max()
+    assert np.abs(many.distance[:, 0] - vertex).max() <= 1e-4 * vertex.max()
+    assert "refined_mesh" in many and many.refined_distance.shape == (many.refined_mesh.n_vertices, 2)
+
+
+def test_point_in_a_face_converges_to_the_euclidean_distance():
+    """Flat disc, alpha_hat 0: u is the PL distance from the point, within O(h) of |x - p|."""
+    p = np.array([0.123, 0.071, 0.0])
+    errors = []
+    with wrd.tolerances.override(**TIGHT):
+        for rings in (6, 12, 24):
+            mesh = _disk(rings)
+            (face, b), = wrd.surface_points(mesh, p)
+            res = wrd.DistanceSolver(mesh, alpha_hat=0.0).solve(points=[(face, b)])
+            assert res.refined_distance[res.refined_mesh.n_vertices - 1] == 0.0
+            errors.append(np.abs(res.distance - np.linalg.norm(mesh.vertices - p, axis=1)).max() / _mean_edge(mesh))
+    errors = np.array(errors) * np.array([1 / 6, 1 / 12, 1 / 24]) / (1 / 6)     # in units of the coarsest h
+    assert errors[1] < 0.75 * errors[0] and errors[2] < 0.75 * errors[1]
+
+
+def test_points_on_edges_and_vertices_and_combined_sources():
+    mesh = _sphere(2)
+    solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)
+    F = mesh.faces
+    res = solver.solve([0], points=[(3, (0.5, 0.5, 0.0)), (7, (0.0, 0.0, 1.0))])
+    assert res.distance[0] == 0 and res.distance[F[7, 2]] == 0
+    edge_vertex = res.refined_mesh.n_vertices - 1
+    assert res.refined_distance[edge_vertex] == 0
+    assert np.allclose(res.refined_mesh.vertices[edge_vertex], mesh.vertices[F[3, :2]].mean(axis=0))
+
+
+def test_refined_problem_matches_the_conic_solve():
+    V, F = meshes.icosphere(3)
+    V = meshes.perturbed(V, F, 0.02, seed=3)
+    mesh = wrd.Mesh(V, F)
+    points = [(11, (0.2, 0.5, 0.3)), (300, (0.0, 0.4, 0.6))]
+    with wrd.tolerances.override(**TIGHT):
+        res = wrd.DistanceSolver(mesh, alpha_hat=0.05).solve(points=points)
+    R = res.refined_mesh
+    sources = np.flatnonzero(res.refined_distance == 0)
+    assert sources.size == 2 and sources.min() >= mesh.n_vertices
+    alpha = 0.05 * np.sqrt(R.element_volumes.sum())
+    expected = rs.solve_reference(R.vertices, R.faces, sources, alpha)
+    assert np.abs(res.refined_distance - expected).max() <= 1e-3 * expected.max()
+
+
+# ---------------------------------------------------------------------- xyz points
+def test_surface_points_finds_the_closest_point():
+    mesh = _sphere(3)
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(20, 3))
+    X /= np.linalg.norm(X, axis=1, keepdims=True)
+    pts, dist = wrd.surface_points(mesh, 1.01 * X, return_distance=True)
+    V, F = mesh.vertices, mesh.faces
+    Y = np.array([np.asarray(b) @ V[F[f]] for f, b in pts])
+    assert np.allclose(np.linalg.norm(Y - 1.01 * X, axis=1), dist)
+    # no face vertex is closer than the point found (a brute-force check over every vertex)
+    nearest_vertex = np.linalg.norm(V[None] - 1.01 * X[:, None], axis=2).min(axis=1)
+    assert (dist <= nearest_vertex + 1e-12).all() and dist.max() < 0.02
+
+
+# ---------------------------------------------------------------------- curves
+def test_equator_curve_on_the_sphere():
+    """Equator as a closed curve at alpha_hat 0: u = |pi/2 - theta| within 2h, falling under refinement."""
+    errors = []
+    th = np.linspace(0, 2 * np.pi, 12, endpoint=False) + 0.1
+    ring = np.stack([np.cos(th), np.sin(th), 0 * th], axis=1)
+    with wrd.tolerances.override(**TIGHT):
+        for sub in (3, 4):
+            mesh = _sphere(sub)
+            res = wrd.DistanceSolver(mesh, alpha_hat=0.0).solve(curve=wrd.surface_points(mesh, ring), closed=True)
+            Z = mesh.vertices[:, 2]
+            exact = np.abs(np.pi / 2 - np.arccos(np.clip(Z / np.linalg.norm(mesh.vertices, axis=1), -1, 1)))
+            err = np.abs(res.distance - exact).max()
+            assert err <= 2 * _mean_edge(mesh)
+            errors.append(err)
+            on_curve = res.refined_mesh.vertices[res.refined_distance == 0]
+            assert np.abs(on_curve[:, 2]).max() < 1e-12 and len(on_curve) > 12
+            assert (res.signed_distance[Z > 1e-9] < 0).all() and (res.signed_distance[Z < -1e-9] > 0).all()
+    assert errors[1] < 0.7 * errors[0]
+
+
+def test_open_curve_is_zero_along_its_edges():
+    mesh = _sphere(3)
+    pts = wrd.surface_points(mesh, [[1, 0, 0.3], [0.3, 1, 0.2], [-0.2, 0.9, -0.4]], max_distance=1.0)
+    res = wrd.DistanceSolver(mesh, alpha_hat=0.05).solve(curve=pts)
+    zero = np.flatnonzero(res.refined_distance == 0)
+    F = res.refined_mesh.faces
+    # the zero vertices form one path of edges: a connected set with two ends of degree 1
+    E = {e for e in _edges(F) if e[0] in set(zero) and e[1] in set(zero)}
+    degree = np.bincount(np.array(list(E)).ravel(), minlength=res.refined_mesh.n_vertices)[zero]
+    assert len(E) == len(zero) - 1 and sorted(degree)[:3] == [1, 1, 2]
+    assert "signed_distance" not in res
+
+
+# ---------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("points, message", [
+    ([(10 ** 6, (1, 0, 0))], r"expected a face index in \[0, 319\] in points of column 0\[0\], got 1000000"),
+    ([(1, (0.5, 0.7, -0.2))], r"expected barycentric coordinates >= 0 that sum to 1"),
+    ([(1, (0.5, 0.7, 0.2))], r"expected barycentric coordinates >= 0 that sum to 1 .* \(sum 1.4\)"),
+    ([(1, (0.5, 0.5))], r"expected 3 finite barycentric coordinates"),
+    ([(1.5, (1, 0, 0))], r"expected an integer face index"),
+    ([], r"expected at least one surface point"),
+])
+def test_bad_points(points, message):
+    solver = wrd.DistanceSolver(_sphere(2))
+    with pytest.raises(ValueError, match=message):
+        solver.solve(points=points)
+
+
+def test_bad_xyz_and_curves():
+    mesh = _sphere(2)
+    with pytest.raises(ValueError, match=r"expected points within 0.1\d+ of the surface \(max_distance\), got point 1"):
+        wrd.surface_points(mesh, [[1, 0, 0], [0, 0, 3]])
+    with pytest.raises(ValueError, match=r"expected finite xyz points, got 1 with NaN/inf"):
+        wrd.surface_points(mesh, [[np.nan, 0, 0]])
+    with pytest.raises(ValueError, match=r"expected xyz points of shape \(p, 3\)"):
+        wrd.surface_points(mesh, np.zeros((0, 3)))
+    solver = wrd.DistanceSolver(mesh)
+    with pytest.raises(ValueError, match="expected a curve of at least 2 points, got 1"):
+        solver.solve(curve=[(1, (1, 0, 0))])
+    with pytest.raises(ValueError, match="expected sources, points or a curve, got none"):
+        solver.solve()
+    with pytest.raises(ValueError, match=r"expected one entry per column .* got lengths \{'source sets': 2, 'points': 1\}"):
+        solver.solve_many([[0], [1]], points=[[(1, (1, 0, 0))]])
+    with pytest.raises(ValueError, match="expected initial=None with points or curves"):
+        solver.solve(points=[(1, (1, 0, 0))], initial=solver.solve([0]))
+
+
+# ---------------------------------------------------------------------- command line
+def test_cli_points_and_closed_curve(tmp_path, capsys):
+    from warp_regdist.cli import main
+
+    mesh = _sphere(3)
+    path = tmp_path / "sphere.off"
+    import trimesh
+    trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(path)
+    (tmp_path / "points.csv").write_text("# x,y,z\n0.3,0.2,0.93\n")
+    th = np.linspace(0, 2 * np.pi, 10, endpoint=False)
+    (tmp_path / "ring.csv").write_text("".join(f"{np.cos(t)},{np.sin(t)},0\n" for t in th))
+    out = tmp_path / "u.npy"
+    assert main(["distance", str(path), "--sources", str(tmp_path / "points.csv"), "--output", str(out)]) == 0
+    assert "from 1 surface points of points.csv (moved onto the surface by at most" in capsys.readouterr().out
+    (face, b), = wrd.surface_points(mesh, [0.3, 0.2, 0.93])
+    assert np.allclose(np.load(out), wrd.DistanceSolver(mesh).solve(points=[(face, b)]).distance, atol=1e-12)
+    assert main(["distance", str(path), "--curve", str(tmp_path / "ring.csv"), "--closed", "--output", str(out),
+                 "--quiet"]) == 0
+    signed = np.load(out)
+    Z = mesh.vertices[:, 2]
+    assert (signed[Z > 1e-9] < 0).all() and (signed[Z < -1e-9] > 0).all()
+    assert main(["distance", str(path), "--closed", "--sources", "0", "--output", str(out)]) == 2
+    assert "expected --closed with a --curve, got no --curve" in capsys.readouterr().err
+    assert main(["distance", str(path), "--output", str(out)]) == 2
+    assert "expected --sources or --curve, got neither" in capsys.readouterr().err

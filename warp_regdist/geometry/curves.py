@@ -1,0 +1,132 @@
+"""Curves on a triangle mesh: polylines through surface points, traced across the faces.
+
+Between two consecutive points A and B of a curve, the curve is the section of the surface
+by the plane through A and B that contains the mean normal n of their faces (normal
+(B - A) x n), from A towards B: :func:`trace_curve` walks that section face by face and
+returns the points where it crosses edges. Between two crossings the curve is straight
+inside one face, so inserting the points and these segments into the mesh
+(:func:`warp_regdist.geometry.surface_points.refine`) makes the curve a chain of edges.
+On a plane the section is the straight segment A-B (the geodesic); on a curved surface it
+is a planar curve close to the geodesic for points a few faces apart.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..tolerances import tolerances
+
+__all__ = ["trace_curve", "face_neighbours"]
+
+
+def face_neighbours(faces):
+    """(m, 3) triangles -> (m, 3) the face across side s (corners s, s + 1) of every face, -1 at the boundary."""
+    m = len(faces)
+    a, b = faces.ravel(), faces[:, [1, 2, 0]].ravel()
+    n = int(faces.max()) + 1
+    key = a * n + b
+    order = np.argsort(key)
+    twin = np.searchsorted(key[order], b * n + a)
+    twin = np.minimum(twin, m * 3 - 1)
+    found = key[order][twin] == b * n + a
+    out = np.where(found, order[twin] // 3, -1)
+    return out.reshape(m, 3)
+
+
+def _touching(faces_of_vertex, T, neighbours, f, b):
+    """The faces whose closure holds the surface point (f, b) (after snapping as refine does)."""
+    snap = tolerances.point_snap
+    k = int(np.argmax(b))
+    if b[k] >= 1.0 - snap:
+        return set(faces_of_vertex(T[f, k]))
+    s = int(np.argmin(b))
+    if b[s] <= snap:
+        g = neighbours[f, (s + 1) % 3]                 # the side opposite corner s: corners s + 1, s + 2
+        return {int(f)} | ({int(g)} if g >= 0 else set())
+    return {int(f)}
+
+
+def trace_curve(mesh, faces, bary, closed=False):
+    """The curve through surface points (faces (p,), bary (p, 3)), with its edge crossings.
+
+    Returns (faces (q,), bary (q, 3), chain (q',)): the input points followed by the crossings,
+    and the chain of point indices along the curve (back to the first point when ``closed``).
+    """
+    if len(faces) < 2:
+        raise ValueError(f"expected a curve of at least 2 points, got {len(faces)}")
+    V, T = mesh.vertices, mesh.elements
+    neighbours = face_neighbours(T)
+    order = np.argsort(T.ravel(), kind="stable")
+    starts = np.searchsorted(T.ravel()[order], np.arange(mesh.n_vertices + 1))
+
+    def faces_of_vertex(v):
+        return (order[starts[v]:starts[v + 1]] // 3).tolist()
+
+    normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    out_f, out_b = list(faces), list(bary)
+    chain = [0]
+    pairs = list(zip(range(len(faces) - 1), range(1, len(faces))))
+    if closed:
+        pairs.append((len(faces) - 1, 0))
+    for ia, ib in pairs:
+        pa, pb = bary[ia] @ V[T[faces[ia]]], bary[ib] @ V[T[faces[ib]]]
+        start = _touching(faces_of_vertex, T, neighbours, faces[ia], bary[ia])
+        goal = _touching(faces_of_vertex, T, neighbours, faces[ib], bary[ib])
+        if not start & goal:
+            for f, b in _walk(V, T, neighbours, normals, start, goal, pa, pb, (ia, ib)):
+                out_f.append(f)
+                out_b.append(b)
+                chain.append(len(out_f) - 1)
+        chain.append(ib)
+    return np.asarray(out_f, dtype=np.int64), np.asarray(out_b), chain
+
+
+def _walk(V, T, neighbours, normals, start, goal, pa, pb, names):
+    """Edge crossings [(face, bary)] of the plane section from pa (on the faces ``start``) to pb."""
+    d = pb - pa
+    nbar = normals[sorted(start)].sum(axis=0) + normals[sorted(goal)].sum(axis=0)
+    m = np.cross(d, nbar)
+    if np.linalg.norm(m) <= 1e-12 * np.linalg.norm(d) * np.linalg.norm(nbar):
+        raise ValueError(f"expected curve points {names[0]} and {names[1]} not along the surface normal, got "
+                         "points one above the other")
+    phi = (V - pa) @ m
+    plus = phi >= 0
+    tiny = 1e-9 * np.linalg.norm(d)
+
+    def crossing(f, s):
+        a, b = T[f, s], T[f, (s + 1) % 3]
+        t = phi[a] / (phi[a] - phi[b])
+        x = (1 - t) * V[a] + t * V[b]
+        w = np.zeros(3)
+        w[s], w[(s + 1) % 3] = 1 - t, t
+        return x, w
+
+    best = None
+    for f in sorted(start):
+        for s in range(3):
+            if plus[T[f, s]] != plus[T[f, (s + 1) % 3]]:
+                x, w = crossing(f, s)
+                ahead = (x - pa) @ d
+                if np.linalg.norm(x - pa) > tiny and ahead > 0 and (best is None or ahead < best[0]):
+                    best = (ahead, f, s, x, w)
+    if best is None:
+        raise ValueError(f"expected curve points {names[0]} and {names[1]} joined by a section of the surface, got "
+                         "no edge crossing towards the next point")
+    _, f, s, x, w = best
+    out = []
+    for _ in range(len(T)):
+        out.append((f, w))
+        g = neighbours[f, s]
+        if g < 0:
+            raise ValueError(f"expected the curve from point {names[0]} to {names[1]} to stay on the surface, got a "
+                             "section that reaches the boundary (add points between them)")
+        if g in goal:
+            return out
+        a, b = T[f, s], T[f, (s + 1) % 3]
+        sg = next(r for r in range(3) if T[g, r] == b and T[g, (r + 1) % 3] == a)
+        s = next(r for r in ((sg + 1) % 3, (sg + 2) % 3) if plus[T[g, r]] != plus[T[g, (r + 1) % 3]])
+        f = g
+        x, w = crossing(f, s)
+    raise ValueError(f"expected curve points {names[0]} and {names[1]} joined by a section of the surface, got a "
+                     "section that does not reach the next point (add points between them)")

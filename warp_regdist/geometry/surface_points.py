@@ -1,0 +1,308 @@
+"""Points and curves on a triangle mesh, made vertices and edges of a refined mesh.
+
+A surface point is a face and barycentric coordinates (b0, b1, b2) on it (b_i >= 0,
+sum 1), at sum_i b_i v_i. :func:`refine` inserts points into the mesh: a point on a
+face's interior splits that face, a point on an edge splits the edge (both faces beside
+it), a point at a vertex is that vertex; the faces that received points are then
+re-triangulated to Delaunay in their own plane, so the surface does not change, and
+the original vertices keep their numbers. A source condition u = 0 at the inserted
+vertex then holds at the point itself (docs/method.md, "Sources anywhere").
+A curve's segment between two points of one face becomes a chain of edges, so u = 0 at
+its vertices gives u = 0 all along it (u is linear on each edge).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import MeshError
+from ..tolerances import tolerances
+from .face_triangulation import FaceTriangulation
+from .mesh import Mesh
+
+__all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
+
+
+def check_surface_points(mesh, points, name="points"):
+    """Validated surface points: [(face, (b0, b1, b2)), ...] -> faces (p,) int64, bary (p, 3) float64."""
+    if mesh.element_dim != 2:
+        raise ValueError(f"expected a triangle mesh for {name} given as (face, barycentric), got a tetrahedral mesh")
+    if isinstance(points, (str, bytes)) or not hasattr(points, "__len__"):
+        raise ValueError(f"expected {name} as a list of (face, (b0, b1, b2)), got {points!r}")
+    if len(points) == 0:
+        raise ValueError(f"expected at least one surface point in {name}, got none")
+    faces, bary = [], []
+    for i, item in enumerate(points):
+        try:
+            face, b = item
+            b = np.asarray(b, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"expected {name}[{i}] as (face, (b0, b1, b2)), got {item!r}") from None
+        if isinstance(face, (bool, np.bool_)) or not isinstance(face, (int, np.integer)):
+            raise ValueError(f"expected an integer face index in {name}[{i}], got {face!r}")
+        if not 0 <= face < mesh.n_elements:
+            raise ValueError(f"expected a face index in [0, {mesh.n_elements - 1}] in {name}[{i}], got {face}")
+        if b.shape != (3,) or not np.isfinite(b).all():
+            raise ValueError(f"expected 3 finite barycentric coordinates in {name}[{i}], got {item[1]!r}")
+        if b.min() < -1e-9 or abs(b.sum() - 1.0) > 1e-6:
+            raise ValueError(f"expected barycentric coordinates >= 0 that sum to 1 in {name}[{i}], got "
+                             f"{b.tolist()} (sum {b.sum():.9g})")
+        faces.append(int(face))
+        bary.append(np.clip(b, 0.0, None) / np.clip(b, 0.0, None).sum())
+    return np.asarray(faces, dtype=np.int64), np.asarray(bary)
+
+
+def surface_points(mesh, xyz, return_distance=False, max_distance=None):
+    """The closest surface point of every xyz point, as [(face, (b0, b1, b2)), ...].
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Triangle mesh.
+    xyz : (p, 3) array_like
+        Points in space.
+    return_distance : bool
+        Also return (p,) how far each point is from its surface point.
+    max_distance : float or None
+        Refuse points farther than this from the surface; None: 5% of the mesh's bounding box
+        diagonal. math.inf accepts any point.
+    """
+    if mesh.element_dim != 2:
+        raise ValueError("expected a triangle mesh for surface_points, got a tetrahedral mesh")
+    X = np.asarray(xyz, dtype=np.float64) if np.size(xyz) else np.zeros((0, 3))
+    if X.ndim == 1 and X.size == 3:
+        X = X[None]
+    if X.ndim != 2 or X.shape[1] != 3 or X.shape[0] == 0:
+        raise ValueError(f"expected xyz points of shape (p, 3) with p >= 1, got shape {np.shape(xyz)}")
+    if not np.isfinite(X).all():
+        raise ValueError(f"expected finite xyz points, got {np.count_nonzero(~np.isfinite(X).all(axis=1))} with NaN/inf")
+    V, F = mesh.vertices, mesh.elements
+    if max_distance is None:
+        max_distance = 0.05 * float(np.linalg.norm(np.ptp(V[np.unique(F)], axis=0)))
+    # the nearest vertex bounds the distance d0 to the surface; every face closer than d0 has its
+    # centroid within d0 + (its largest centroid-to-corner distance)
+    used = np.unique(F)
+    d0, _ = cKDTree(V[used]).query(X)
+    centroid = V[F].mean(axis=1)
+    radius = np.linalg.norm(V[F] - centroid[:, None], axis=2).max(axis=1)
+    tree = cKDTree(centroid)
+    faces = np.empty(len(X), dtype=np.int64)
+    bary = np.empty((len(X), 3))
+    dist = np.empty(len(X))
+    for i, x in enumerate(X):
+        cand = np.asarray(tree.query_ball_point(x, d0[i] + radius.max() + 1e-12), dtype=np.int64)
+        q, b = _closest_on_triangles(x, V[F[cand]])
+        d = np.linalg.norm(q - x, axis=1)
+        j = int(np.argmin(d))
+        faces[i], bary[i], dist[i] = cand[j], b[j], d[j]
+    far = np.flatnonzero(dist > max_distance)
+    if far.size:
+        raise ValueError(f"expected points within {max_distance:.6g} of the surface (max_distance), got point {far[0]} "
+                         f"at distance {dist[far[0]]:.6g} ({far.size} such)")
+    out = [(int(f), tuple(float(c) for c in b)) for f, b in zip(faces, bary)]
+    return (out, dist) if return_distance else out
+
+
+def _closest_on_triangles(x, tri):
+    """Closest points to x on triangles tri (k, 3, 3): points (k, 3) and barycentrics (k, 3)
+    (Ericson, Real-Time Collision Detection, 5.1.5)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac, ap = b - a, c - a, x - a
+    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
+    bp, cp = x - b, x - c
+    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
+    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    k = len(tri)
+    B = np.empty((k, 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        B[:] = np.stack([1 - (vb + vc) / denom, vb / denom, vc / denom], axis=1)      # interior
+        cases = [
+            (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),                                  # on side bc
+            (vb <= 0) & (d2 >= 0) & (d6 <= 0),                                             # on side ac
+            (vc <= 0) & (d1 >= 0) & (d3 <= 0),                                             # on side ab
+        ]
+        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        w_ac, w_ab = d2 / (d2 - d6), d1 / (d1 - d3)
+        for mask, value in zip(cases, (np.stack([0 * w_bc, 1 - w_bc, w_bc], 1), np.stack([1 - w_ac, 0 * w_ac, w_ac], 1),
+                                       np.stack([1 - w_ab, w_ab, 0 * w_ab], 1))):
+            B[mask] = value[mask]
+        for mask, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
+            B[mask] = np.eye(3)[corner]
+    B = np.clip(np.nan_to_num(B), 0.0, 1.0)
+    B /= B.sum(axis=1, keepdims=True)
+    return np.einsum("ki,kij->kj", B, tri), B
+
+
+@dataclasses.dataclass(frozen=True)
+class Refinement:
+    """A mesh refined at surface points (see :func:`refine`).
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The refined mesh; its first ``n_original`` vertices are the original ones.
+    n_original : int
+    point_vertices : (p,) ndarray of int64
+        The refined mesh's vertex at every input point.
+    displacement : (p,) ndarray of float
+        How far each point moved onto a vertex or an edge (points within ``tolerances.point_snap``
+        of one, in barycentric coordinates).
+    curve_vertices : list of (c_i,) ndarray of int64
+        For every segment chain given, its vertices in order.
+    parent : (m',) ndarray of int64
+        The original face of every refined face.
+    """
+
+    mesh: Mesh
+    n_original: int
+    point_vertices: np.ndarray
+    displacement: np.ndarray
+    curve_vertices: list
+    parent: np.ndarray
+
+
+def refine(mesh, faces, bary, chains=()):
+    """Insert surface points (faces (p,), bary (p, 3)) into a triangle mesh.
+
+    ``chains``: sequences of point indices; consecutive points of a chain must lie on one common
+    face (closure included), and the segment between them becomes a chain of edges.
+    """
+    V, T, n = mesh.vertices, mesh.elements, mesh.n_vertices
+    snap = tolerances.point_snap
+    positions = [p for p in V]
+    edge_points = {}                              # (lo, hi) -> [[t, vertex], ...]
+    face_points = {}                              # face -> [[bary, vertex], ...]
+
+    def new_vertex(x):
+        positions.append(x)
+        return len(positions) - 1
+
+    vertex_of = np.empty(len(faces), dtype=np.int64)
+    for i, (f, b) in enumerate(zip(faces, bary)):
+        corners = T[f]
+        k = int(np.argmax(b))
+        if b[k] >= 1.0 - snap:
+            vertex_of[i] = corners[k]
+            continue
+        s = int(np.argmin(b))
+        if b[s] <= snap:
+            a, c = corners[(s + 1) % 3], corners[(s + 2) % 3]
+            wa, wc = b[(s + 1) % 3], b[(s + 2) % 3]
+            lo, hi, t = (a, c, wc / (wa + wc)) if a < c else (c, a, wa / (wa + wc))
+            bucket = edge_points.setdefault((lo, hi), [])
+            hit = next((e for e in bucket if abs(e[0] - t) <= snap), None)
+            if hit is None:
+                hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi])]
+                bucket.append(hit)
+            vertex_of[i] = hit[1]
+            continue
+        bucket = face_points.setdefault(int(f), [])
+        hit = next((e for e in bucket if np.abs(e[0] - b).max() <= snap), None)
+        if hit is None:
+            hit = [b, new_vertex(b @ V[corners])]
+            bucket.append(hit)
+        vertex_of[i] = hit[1]
+    requested = np.einsum("pi,pij->pj", bary, V[T[faces]])
+
+    # the faces of each chain segment: the common face of its two points
+    segments = {}
+    for chain in chains:
+        for i, j in zip(chain[:-1], chain[1:]):
+            if vertex_of[i] == vertex_of[j]:
+                continue
+            f = _common_face(mesh, faces[i], faces[j], vertex_of[i], vertex_of[j], edge_points, n)
+            segments.setdefault(f, []).append((vertex_of[i], vertex_of[j]))
+
+    touched = set(face_points) | set(segments)
+    for lo, hi in edge_points:
+        touched |= set(_faces_of_edge(mesh, lo, hi))
+    keep = np.ones(len(T), dtype=bool)
+    new_faces, parent = [], []
+    chain_points = {}
+    for f in sorted(touched):
+        corners = T[f]
+        P = _plane_frame(V[corners])
+        ft = FaceTriangulation(P, corners.tolist())
+        for s in range(3):
+            a, c = corners[s], corners[(s + 1) % 3]
+            for t, v in edge_points.get((min(a, c), max(a, c)), []):
+                ts = t if a < c else 1 - t
+                ft.split_side(s, (1 - ts) * P[s] + ts * P[(s + 1) % 3], v)
+        for b, v in face_points.get(f, []):
+            ft.insert(b @ P, v)
+        ft.make_delaunay()
+        local = {label: i for i, label in enumerate(ft.labels)}
+        for a, c in segments.get(f, []):
+            chain = ft.recover(local[a], local[c])
+            for idx in chain:
+                if ft.labels[idx] is None:
+                    ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]))
+            chain_points[(a, c)] = [ft.labels[idx] for idx in chain]
+        for idx, label in enumerate(ft.labels):
+            if label is None:
+                ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]))
+        if len(ft.triangles) > 1:
+            keep[f] = False
+            new_faces += [[ft.labels[i] for i in tri] for tri in ft.triangles]
+            parent += [f] * len(ft.triangles)
+    elements = np.concatenate([T[keep], np.asarray(new_faces, dtype=np.int64).reshape(-1, 3)])
+    parents = np.concatenate([np.flatnonzero(keep), np.asarray(parent, dtype=np.int64)])
+    X = np.asarray(positions)
+    try:
+        refined = Mesh(X, elements)
+    except MeshError as err:
+        raise ValueError(f"expected surface points that refine the mesh into valid triangles, got: {err}") from None
+    curves = []
+    for chain in chains:
+        verts = [vertex_of[chain[0]]]
+        for i, j in zip(chain[:-1], chain[1:]):
+            a, c = vertex_of[i], vertex_of[j]
+            verts += chain_points.get((a, c), [a, c])[1:]
+        curves.append(np.asarray(verts, dtype=np.int64))
+    return Refinement(mesh=refined, n_original=n, point_vertices=vertex_of,
+                      displacement=np.linalg.norm(X[vertex_of] - requested, axis=1), curve_vertices=curves,
+                      parent=parents)
+
+
+def _plane_frame(corners):
+    """(3, 3) triangle -> (3, 2) its corners in an orthonormal frame of its plane (counter-clockwise)."""
+    e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+    x = e1 / np.linalg.norm(e1)
+    y = e2 - (e2 @ x) * x
+    y /= np.linalg.norm(y)
+    return np.array([[0.0, 0.0], [np.linalg.norm(e1), 0.0], [e2 @ x, e2 @ y]])
+
+
+def _lift(xy, P, corners):
+    """A point of the plane frame P back to 3D."""
+    M = np.array([[P[1, 0] - P[0, 0], P[2, 0] - P[0, 0]], [P[1, 1] - P[0, 1], P[2, 1] - P[0, 1]]])
+    w1, w2 = np.linalg.solve(M, np.asarray(xy) - P[0])
+    return (1 - w1 - w2) * corners[0] + w1 * corners[1] + w2 * corners[2]
+
+
+def _faces_of_edge(mesh, lo, hi):
+    T = mesh.elements
+    return np.flatnonzero(((T == lo).any(axis=1)) & ((T == hi).any(axis=1))).tolist()
+
+
+def _common_face(mesh, fa, fb, va, vb, edge_points, n):
+    """A face whose closure holds both points (given by their faces and refined vertices)."""
+    T = mesh.elements
+
+    def faces_of(f, v):
+        if v < n:
+            return set(np.flatnonzero((T == v).any(axis=1)).tolist())
+        for (lo, hi), bucket in edge_points.items():
+            if any(e[1] == v for e in bucket):
+                return set(_faces_of_edge(mesh, lo, hi))
+        return {int(f)}
+
+    common = faces_of(fa, va) & faces_of(fb, vb)
+    if not common:
+        raise ValueError(f"expected consecutive curve points on a common face, got points on faces {fa} and {fb}")
+    return min(common)

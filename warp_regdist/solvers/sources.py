@@ -1,0 +1,166 @@
+"""Source sets: vertex indices, points anywhere on the surface, curves.
+
+Vertex sources are checked here. The points and curves of all columns are inserted into
+one refined mesh (:func:`warp_regdist.geometry.surface_points.refine`); each column's sources are then
+vertices of that mesh: its vertex sources (the original vertices keep their numbers), the
+vertices at its points, and the vertices along its curves.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
+
+from ..geometry.curves import trace_curve
+from ..geometry.surface_points import check_surface_points, refine
+
+__all__ = ["vertex_sources", "SurfaceSources", "surface_sources", "solve_surface_sources"]
+
+
+def vertex_sources(sources, column, n, labels):
+    """Validated source vertices of column ``column`` -> (indices (s,), reachable (n,) bool: the
+    vertices of the sources' connected components, ``labels`` (n,) from Mesh.components())."""
+    if isinstance(sources, (str, bytes)):
+        raise ValueError(f"expected source set {column} as vertex indices, got the string {sources!r}")
+    if not hasattr(sources, "__iter__") or isinstance(sources, np.ndarray) and sources.ndim == 0:
+        raise ValueError(f"expected source set {column} as a list of vertex indices, got {sources!r} "
+                         "(one vertex i is the set [i]; solve_many takes a list of such sets)")
+    try:
+        arr = np.asarray(list(sources) if not isinstance(sources, np.ndarray) else sources)
+    except (TypeError, ValueError):  # ragged nesting, non-iterable items
+        raise ValueError(f"expected source set {column} as a flat list of vertex indices, "
+                         f"got {repr(sources)[:80]}") from None
+    if arr.size == 0:
+        raise ValueError(f"expected at least one source vertex in source set {column}, got none")
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or
+                                 (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)))):
+        raise ValueError(f"expected integer vertex indices in source set {column}, got {arr.ravel()[:5].tolist()}")
+    bad = arr[(arr < 0) | (arr >= n)]
+    if bad.size:
+        raise ValueError(f"expected source vertex indices in [0, {n - 1}] in source set {column}, got {bad.ravel()[0].item()!r}")
+    arr = arr.astype(np.int64).ravel()
+    comps = np.unique(labels[arr])
+    reachable = np.isin(labels, comps[comps >= 0])
+    reachable[arr] = True
+    return np.unique(arr), reachable
+
+
+class SurfaceSources:
+    """The refined mesh of a batch and every column's source vertices on it.
+
+    Attributes
+    ----------
+    refinement : warp_regdist.geometry.surface_points.Refinement
+    sets : list of (s_j,) ndarray of int64
+        Column j's source vertices of the refined mesh.
+    curves : list of list of (c,) ndarray
+        Column j's curves, each as its chain of refined vertices.
+    key : str
+        Identifies the refined problem (for reusing its solver).
+    """
+
+    def __init__(self, refinement, sets, curves, key):
+        self.refinement, self.sets, self.curves, self.key = refinement, sets, curves, key
+
+    def signs(self, j):
+        """(n',) +1 / -1 on the two sides of column j's closed curves (-1 on the left of their
+        direction, seen from the side the face normals point to), 0 on them."""
+        mesh = self.refinement.mesh
+        F = mesh.elements
+        cut = set()
+        for chain in self.curves[j]:
+            cut |= {(int(a), int(b)) for a, b in zip(chain[:-1], chain[1:])}
+        a, b = F.ravel(), F[:, [1, 2, 0]].ravel()
+        face = np.repeat(np.arange(len(F)), 3)
+        left = np.array([(x, y) in cut for x, y in zip(a.tolist(), b.tolist())])
+        right = np.array([(y, x) in cut for x, y in zip(a.tolist(), b.tolist())])
+        # faces joined across every edge that is not on a curve
+        n = mesh.n_vertices
+        key = np.minimum(a, b) * n + np.maximum(a, b)
+        on_curve = np.isin(key, key[left | right])
+        order = np.argsort(key)
+        same = (key[order][1:] == key[order][:-1]) & ~on_curve[order][1:]
+        g = sp.coo_matrix((np.ones(same.sum()), (face[order][1:][same], face[order][:-1][same])), shape=(len(F),) * 2)
+        _, label = csgraph.connected_components(g, directed=False)
+        inside, outside = set(label[face[left]].tolist()), set(label[face[right]].tolist())
+        if not inside or inside & outside:
+            raise ValueError("expected closed curves that cut the surface into an inside (left of the curve) and an "
+                             "outside for a signed distance, got curves with the same region on both sides")
+        sign = np.ones(n)
+        vertex_face = np.full(n, -1)
+        vertex_face[F.ravel()] = np.repeat(np.arange(len(F)), 3)
+        sign[np.isin(label[np.maximum(vertex_face, 0)], list(inside))] = -1.0
+        for chain in self.curves[j]:
+            sign[chain] = 0.0
+        return sign
+
+
+def surface_sources(mesh, k, sets, points, curves, closed):
+    """The refined mesh of k columns: ``sets`` (k lists of vertices or None), ``points`` (k lists
+    of surface points or None), ``curves`` (k curves, each a list of surface points, or None)."""
+    faces, bary, chains, own_points, own_curves = [], [], [], [], []
+    for j in range(k):
+        f, b = (check_surface_points(mesh, points[j], f"points of column {j}") if points is not None
+                else (np.zeros(0, np.int64), np.zeros((0, 3))))
+        own_points.append(np.arange(len(f)) + sum(len(x) for x in faces))
+        faces.append(f)
+        bary.append(b)
+        own_curves.append([])
+        if curves is not None:
+            cf, cb = check_surface_points(mesh, curves[j], f"curve of column {j}")
+            cf, cb, chain = trace_curve(mesh, cf, cb, closed)
+            offset = sum(len(x) for x in faces)
+            faces.append(cf)
+            bary.append(cb)
+            own_curves[j].append(len(chains))
+            chains.append([offset + i for i in chain])
+    F, B = np.concatenate(faces), np.concatenate(bary)
+    R = refine(mesh, F, B, chains)
+    out_sets, out_curves = [], []
+    for j in range(k):
+        s = [] if sets is None else [np.asarray(sets[j], dtype=np.int64).ravel()]
+        s.append(R.point_vertices[own_points[j]])
+        s += [R.curve_vertices[c] for c in own_curves[j]]
+        out_sets.append(np.unique(np.concatenate(s)))
+        out_curves.append([R.curve_vertices[c] for c in own_curves[j]])
+    return SurfaceSources(R, out_sets, out_curves, R.mesh.sha256())
+
+
+def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, initial, keep_duals, schedule):
+    """:meth:`DistanceSolver.solve_many` with points and curves: the batch solved on the refined mesh by a
+    solver of the same settings (kept by ``solver`` for the next call with the same refined mesh)."""
+    given = {name: x for name, x in (("source sets", source_sets), ("points", points), ("curves", curves))
+             if x is not None}
+    for name, x in given.items():
+        if isinstance(x, (str, bytes)) or not hasattr(x, "__len__"):
+            raise ValueError(f"expected {name} as a list with one entry per column, got {x!r}")
+    lengths = {name: len(x) for name, x in given.items()}
+    if closed and curves is None:
+        raise ValueError("expected a curve with closed=True, got none")
+    if len(set(lengths.values())) != 1 or 0 in lengths.values():
+        raise ValueError(f"expected one entry per column (at least one) in each of {', '.join(lengths)}, got lengths "
+                         f"{lengths}")
+    if initial is not None:
+        raise ValueError("expected initial=None with points or curves (they refine the mesh, so a warm start of "
+                         f"its vertices does not fit), got {type(initial).__name__}")
+    k = next(iter(lengths.values()))
+    if source_sets is not None:
+        source_sets = [solver._source_mask(s, j)[0] for j, s in enumerate(source_sets)]
+    S = surface_sources(solver.mesh, k, source_sets, points, curves, closed)
+    if solver._refined is None or solver._refined[0] != S.key:
+        if solver._refined is not None:
+            solver._refined[1].close()
+        args = dict(solver._copy_arguments, mesh=S.refinement.mesh)
+        if args["vector_field"] is not None:
+            args["vector_field"] = np.asarray(args["vector_field"])[S.refinement.parent]
+        solver._refined = (S.key, type(solver)(device=solver.device, workers=None if solver._auto_workers else
+                                               solver.workers, **args))
+    res = solver._refined[1]._solve_many([s.tolist() for s in S.sets], verbose, None, keep_duals, schedule)
+    n = solver.mesh.n_vertices
+    res["refined_mesh"] = S.refinement.mesh
+    res["refined_distance"] = res.distance
+    res["distance"] = res.distance[:n]
+    if closed:
+        res["signed_distance"] = np.stack([S.signs(j)[:n] for j in range(k)], axis=1) * res.distance
+    return res
