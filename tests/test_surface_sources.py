@@ -227,3 +227,17 @@ def test_cli_points_and_closed_curve(tmp_path, capsys):
     assert "expected --closed with a --curve, got no --curve" in capsys.readouterr().err
     assert main(["distance", str(path), "--output", str(out)]) == 2
     assert "expected --sources or --curve, got neither" in capsys.readouterr().err
+
+
+def test_distance_matrix_with_landmark_points(tmp_path):
+    mesh = _sphere(2)
+    points = [(3, (0.2, 0.3, 0.5)), (50, (0.5, 0.5, 0.0)), (100, (1.0, 0.0, 0.0))]
+    D = wrd.distance_matrix(mesh, points=points, chunk=2)
+    columns = wrd.DistanceSolver(mesh).solve_many(points=[[p] for p in points]).distance
+    assert D.shape == (3, mesh.n_vertices) and np.abs(D - columns.T).max() <= 1e-9 * D.max()
+    stored = wrd.distance_matrix(mesh, points=points, chunk=2, out=tmp_path / "D.npy")
+    assert np.array_equal(np.asarray(stored), D)
+    with pytest.raises(ValueError, match="expected sources or points, got both"):
+        wrd.distance_matrix(mesh, sources=[0], points=points)
+    with pytest.raises(ValueError, match=r"expected distinct points, got points 0 and 1 at the same place"):
+        wrd.distance_matrix(mesh, points=[points[0], points[0]])

@@ -24,6 +24,7 @@ from ..arguments import check_weight, parse_workers
 from ..kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from ..geometry.mesh import Mesh
+from ..geometry.surface_points import check_surface_points, refine
 from ..errors import ConvergenceWarning
 from .row_solves import solve_rows
 from ..solvers.solver import DistanceSolver
@@ -32,7 +33,7 @@ __all__ = ["distance_matrix"]
 
 
 def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
-                    chunk=64, workers=None, client=None, out=None, progress=None):
+                    chunk=64, workers=None, client=None, out=None, progress=None, points=None):
     """Single-source distances from many vertices, stacked as rows.
 
     Parameters
@@ -43,7 +44,12 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         0.05, as :class:`DistanceSolver`). The all-pairs problem counts the Dirichlet energy
         of a symmetric U twice, so its rows are closest to single-source rows at 2 alpha_hat.
     sources : (k,) array_like of int or None
-        Distinct source vertices, one row each; None: all vertices (k = n).
+        Distinct source vertices, one row each; None: all vertices (k = n), unless ``points``.
+    points : list of (face, (b0, b1, b2)) or None
+        Landmarks anywhere on a triangle mesh instead of ``sources`` (e.g. from
+        :func:`~warp_regdist.surface_points`), one row each: they are inserted into one refined mesh
+        (as in :meth:`DistanceSolver.solve`) and the rows hold the distances at this mesh's n
+        vertices. ``symmetrize`` does not apply (no landmark is a column).
     symmetrize : bool
         Replace D[r, sources[c]] and D[c, sources[r]] by their mean for every pair of rows,
         so the (k, k) block of source columns (all of D when sources is None) is symmetric.
@@ -87,12 +93,18 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     if progress is not None and not callable(progress):
         raise ValueError(f"expected progress as a callable or None, got {progress!r}")
     n = mesh.n_vertices
+    landmarks = None
+    if points is not None:
+        if sources is not None:
+            raise ValueError("expected sources or points, got both")
+        landmarks, sources, points_sha256 = _landmarks(mesh, points)
+        symmetrize = False
     src = np.arange(n) if sources is None else np.asarray(sources)
     if src.ndim != 1 or src.size == 0 or not np.issubdtype(src.dtype, np.integer):
         raise ValueError(f"expected sources as a non-empty 1-D array of vertex indices, got {sources!r}")
     if np.unique(src).size != src.size:
         raise ValueError(f"expected distinct source vertices, got {src.size - np.unique(src).size} repeated")
-    if src.min() < 0 or src.max() >= n:
+    if landmarks is None and (src.min() < 0 or src.max() >= n):
         raise ValueError(f"expected sources in [0, {n - 1}], got {src.min() if src.min() < 0 else src.max()}")
     src = src.astype(np.int64)
     chunk = int(chunk)
@@ -102,17 +114,21 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         if out is None:
             if progress is not None:
                 raise ValueError(f"expected progress=None for a lazy dask array (client without out), got {progress!r}")
-            return distributed.lazy_matrix(client, mesh, problem, src, chunk, symmetrize)
+            lazy = distributed.lazy_matrix(client, mesh if landmarks is None else landmarks, problem, src, chunk, symmetrize)
+            return lazy if landmarks is None else lazy[:, :n]
     fingerprint = dict(mesh_sha256=mesh.sha256(), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
                        sources_sha256=hashlib.sha256(src.tobytes()).hexdigest(), k=int(src.size), chunk=chunk,
                        symmetrize=bool(symmetrize))
+    if landmarks is not None:
+        fingerprint["points_sha256"] = points_sha256
     with open_rows(out, (src.size, n), chunk, dtype, fingerprint) as store:
         todo = store.todo()
         blocks = {b: src[b * chunk:(b + 1) * chunk] for b in todo}
+        solve_on = mesh if landmarks is None else landmarks
         if client is not None:
-            solved = distributed.solve_blocks(client, mesh, problem, blocks)
+            solved = distributed.solve_blocks(client, solve_on, problem, blocks)
         else:
-            solved = _solve_blocks_here(DistanceSolver(mesh, workers=workers, **problem), blocks) if blocks else iter(())
+            solved = _solve_blocks_here(DistanceSolver(solve_on, workers=workers, **problem), blocks) if blocks else iter(())
         t0 = time.perf_counter()
         done = store.blocks - len(todo)
         if progress is not None:
@@ -120,13 +136,27 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         for block, rows, messages in solved:
             for message in messages:
                 warnings.warn(message, ConvergenceWarning, stacklevel=2)
-            store.write(block, rows, src if symmetrize else None)
+            store.write(block, rows[:, :n], src if symmetrize else None)
             done += 1
             if progress is not None:
                 progress(done, store.blocks, time.perf_counter() - t0)
         if symmetrize:
             store.symmetrize(src)
         return store.result()
+
+
+def _landmarks(mesh, points):
+    """Surface points -> (the refined mesh, their (k,) vertices on it, a SHA-256 of the points)."""
+    faces, bary = check_surface_points(mesh, points, "points")
+    R = refine(mesh, faces, bary)
+    vertices, first = np.unique(R.point_vertices, return_index=True)
+    if vertices.size != len(faces):
+        twice = np.setdiff1d(np.arange(len(faces)), first)[0]
+        same = int(np.flatnonzero(R.point_vertices == R.point_vertices[twice])[0])
+        raise ValueError(f"expected distinct points, got points {same} and {twice} at the same place (within "
+                         "tolerances.point_snap)")
+    digest = hashlib.sha256(faces.astype("<i8").tobytes() + bary.astype("<f8").tobytes()).hexdigest()
+    return R.mesh, R.point_vertices, digest
 
 
 def _solve_blocks_here(solver, blocks):
