@@ -38,7 +38,7 @@ def meshes(tmp_path_factory):
     grid = trimesh.Trimesh(np.stack([x.ravel(), y.ravel(), np.zeros(k * k)], 1), faces, process=False)
     grid.export(folder / "grid.ply")
     (folder / "garbage.off").write_text("OFF\n3 1 0\n0 0 0\n1 0\nnot a mesh\n")
-    (folder / "points.xyz").write_text("0 0 0\n1 0 0\n0 1 0\n")
+    (folder / "points.txt").write_text("0 0 0\n1 0 0\n0 1 0\n")
     (folder / "d.npy").mkdir()  # a directory where a file is expected
     return folder
 
@@ -131,9 +131,9 @@ BAD_INPUTS = {
                  "could not read mesh file '{m}/garbage.off': ..."),
     "mesh is a directory": (["distance", "{t}", "--sources", "0", "--output", "{t}/u.npy"],
                             "expected an existing mesh file, got '{t}' (no such file)"),
-    "bad mesh extension": (["distance", "{m}/points.xyz", "--sources", "0", "--output", "{t}/u.npy"],
+    "bad mesh extension": (["distance", "{m}/points.txt", "--sources", "0", "--output", "{t}/u.npy"],
                            "expected a mesh file ending in .obj, .off, .ply, .stl, .msh, .vtk, .vtu or .mesh, "
-                           "got '{m}/points.xyz'"),
+                           "got '{m}/points.txt'"),
     "letters as sources": (["distance", "{m}/sphere.off", "--sources", "a,b", "--output", "{t}/u.npy"],
                            "expected --sources as comma-separated vertex indices (e.g. 2272,17) or 'boundary', "
                            "got 'a,b'"),

@@ -165,17 +165,29 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
 
 
 def load(path: str):
-    from .. import load_mesh
+    """The mesh of a mesh file, or the PointCloud of a point file (.xyz, .npy, a PLY without faces)."""
+    from .. import MeshError, load_mesh
+    from ..geometry.mesh_io import load_points
 
     with warnings_to_stderr():
-        return load_mesh(path)
+        if path.lower().endswith((".xyz", ".npy")):
+            return load_points(path)
+        try:
+            return load_mesh(path)
+        except MeshError as exc:
+            if path.lower().endswith(".ply") and "got none (empty file, or a point cloud)" in str(exc):
+                return load_points(path)
+            raise
 
 
 def summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
     status = "converged" if result.converged else "NOT converged"
     elements = "faces" if mesh.element_dim == 2 else "tetrahedra"
+    vertices = "vertices"
+    if mesh.element_weights is not None:
+        vertices, elements = "points", "local triangles"
     return (
-        f"{name}: {mesh.n_vertices} vertices, {mesh.n_elements} {elements}. Regularized geodesic "
+        f"{name}: {mesh.n_vertices} {vertices}, {mesh.n_elements} {elements}. Regularized geodesic "
         f"distance from {described}, {solver.regularizer.name} regularizer, alpha_hat {solver.alpha_hat:g} "
         f"(alpha {solver.alpha:.4g}), "
         f"on {solver.device} in {solver.dtype}: {result.iterations} ADMM iterations, {status} "

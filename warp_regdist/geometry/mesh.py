@@ -44,6 +44,10 @@ class Mesh:
     read-only, so what is derived from them once (volumes, :meth:`components`) stays true.
     """
 
+    element_weights = None
+    """(m,) factors of the element volumes in the finite-element operators; None: all 1 (a point
+    cloud's triangles, which overlap, carry their multiplicity / 3)."""
+
     def __init__(self, vertices, elements):
         V = np.asarray(vertices)
         T = np.asarray(elements)
@@ -174,7 +178,10 @@ class Mesh:
         bytes, each after its shape): what identifies the mesh in checkpoints and progress records."""
         if self._sha256 is None:
             h = hashlib.sha256()
-            for a in (np.ascontiguousarray(self.vertices, dtype="<f8"), np.ascontiguousarray(self.elements, dtype="<i8")):
+            arrays = [np.ascontiguousarray(self.vertices, dtype="<f8"), np.ascontiguousarray(self.elements, dtype="<i8")]
+            if self.element_weights is not None:
+                arrays.append(np.ascontiguousarray(self.element_weights, dtype="<f8"))
+            for a in arrays:
                 h.update(str(a.shape).encode())
                 h.update(a.tobytes())
             self._sha256 = h.hexdigest()

@@ -15,7 +15,10 @@ import numpy as np
 from ..errors import MeshError
 from .mesh import Mesh
 
-__all__ = ["load_mesh", "data_path"]
+__all__ = ["load_mesh", "load_points", "data_path", "POINT_FORMATS"]
+
+POINT_FORMATS = (".xyz", ".npy", ".ply")
+"""Point-cloud files of :func:`load_points` (PLY: a file without faces)."""
 
 _VOLUME_FORMATS = {".msh": ("gmsh", "ansys"), ".vtk": ("vtk",), ".vtu": ("vtu",), ".mesh": ("medit",)}  # meshio
 _SURFACE_FORMATS = (".off", ".ply", ".stl")  # read by trimesh (OBJ by _read_obj)
@@ -133,6 +136,39 @@ def _read_obj(path):
     if not faces:
         raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
     return V, np.array(faces, dtype=np.int64) - 1, polygons
+
+
+def load_points(path, neighbours=30):
+    """Read a point cloud as a :class:`~warp_regdist.PointCloud`: ``.xyz`` (text, x y z first on each
+    line, '#' comments), ``.npy`` ((p, 3) array) or ``.ply`` (its vertices; faces are ignored)."""
+    from .point_cloud import PointCloud
+
+    path = os.fsdecode(os.fspath(path))
+    if not os.path.isfile(path):
+        raise MeshError(f"expected an existing point file, got {path!r} (no such file)")
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in POINT_FORMATS:
+        raise MeshError(f"expected a point file ending in .xyz, .npy or .ply, got {path!r}")
+    try:
+        if ext == ".xyz":
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")       # an empty file: numpy warns, then the shape check refuses it
+                P = np.loadtxt(path, comments="#", ndmin=2)
+            P = P[:, :3] if P.ndim == 2 and P.shape[1] >= 3 else P
+        elif ext == ".npy":
+            P = np.load(path, allow_pickle=False)
+        else:
+            import trimesh
+
+            P = np.asarray(trimesh.load(path, process=False).vertices)
+    except Exception as exc:  # numpy and trimesh raise many types for malformed files
+        raise MeshError(f"could not read point file {path!r}: not a valid {ext[1:].upper()} file ({exc})") from None
+    try:
+        return PointCloud(P, neighbours=neighbours)
+    except ValueError as exc:
+        raise MeshError(f"{exc} in {path!r}") from None
 
 
 def _read_volume_file(path, ext):

@@ -93,10 +93,13 @@ def build_operators(mesh):
     G is written in CSR form directly (row 3 e + c holds the element's vertices in
     increasing order) and M_F G^T from the vertex-element incidence (one counting sort),
     so that W_D = (G^T M_F) G is a single sparse product, with no COO or CSC conversions.
+    The element volumes a_e are multiplied by ``mesh.element_weights`` where it has them.
     """
     T = mesh.elements
     n, m, k = mesh.n_vertices, T.shape[0], T.shape[1]
     basis, vol = element_gradients(mesh.vertices, T)
+    if mesh.element_weights is not None:
+        vol = vol * mesh.element_weights
     index = np.int32 if max(3 * m * k, 3 * m, n) < 2 ** 31 else np.int64
     local = np.argsort(T, axis=1)
     columns = np.broadcast_to(np.take_along_axis(T, local, axis=1)[:, None, :].astype(index), (m, 3, k))

@@ -28,6 +28,8 @@ __all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
 
 def check_surface_points(mesh, points, name="points"):
     """Validated surface points: [(face, (b0, b1, b2)), ...] -> faces (p,) int64, bary (p, 3) float64."""
+    if mesh.element_weights is not None:
+        raise ValueError(f"expected a triangle mesh for {name}, got a PointCloud (its sources are point indices)")
     if mesh.element_dim != 2:
         raise ValueError(f"expected a triangle mesh for {name} given as (face, barycentric), got a tetrahedral mesh")
     if isinstance(points, (str, bytes)) or not hasattr(points, "__len__"):
@@ -70,8 +72,9 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
         Refuse points farther than this from the surface; None: 5% of the mesh's bounding box
         diagonal. math.inf accepts any point.
     """
-    if mesh.element_dim != 2:
-        raise ValueError("expected a triangle mesh for surface_points, got a tetrahedral mesh")
+    if mesh.element_dim != 2 or mesh.element_weights is not None:
+        raise ValueError("expected a triangle mesh for surface_points, got a "
+                         f"{'tetrahedral mesh' if mesh.element_dim == 3 else 'PointCloud'}")
     X = np.asarray(xyz, dtype=np.float64) if np.size(xyz) else np.zeros((0, 3))
     if X.ndim == 1 and X.size == 3:
         X = X[None]
