@@ -273,12 +273,17 @@ def test_a_string_is_not_a_source_set(square_solver):
         square_solver.solve("0")
 
 
-@pytest.mark.parametrize("sources", [3, np.int64(3), None, [[0], [1, 2]]])
+@pytest.mark.parametrize("sources", [3, np.int64(3), [[0], [1, 2]]])
 def test_scalar_or_nested_source_set(square_solver, sources):
     with pytest.raises(ValueError, match=r"expected source set 0 as a (flat )?list of vertex indices"):
         square_solver.solve(sources)
     with pytest.raises(ValueError, match=r"expected source set 0 as a list"):
         square_solver.solve_many([0, 1])  # one set per vertex is [[0], [1]]
+
+
+def test_no_sources(square_solver):
+    with pytest.raises(ValueError, match=r"^expected sources, points or a curve, got none$"):
+        square_solver.solve(None)
 
 
 @pytest.mark.parametrize("sources, shown", [([np.inf], "inf"), ([1e20], "1e+20"),
