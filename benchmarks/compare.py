@@ -2,6 +2,7 @@
 
     python benchmarks/compare.py            # all meshes, tables, CSV, both pictures
     python benchmarks/compare.py --quick    # spot and the generated blob only, no pictures
+    python benchmarks/compare.py --cloud 100000   # point clouds sampled from spot (cloud.csv, point_cloud.png)
 
 Per mesh and source: this package (``DistanceSolver``, alpha_hat in ALPHA_HATS), the heat
 method (potpourri3d, t = t_coef * mean edge length^2, t_coef in T_COEFS) and exact
@@ -12,6 +13,11 @@ are loaded), max and mean |u - u_exact| in % of max u_exact, and
 benchmarks/results/compare.csv, docs/compare_grid.png (rows = methods, columns = meshes,
 the same isolines for all methods of a mesh) and docs/alpha_hat_grid.png (spot, one
 source, alpha_hat and heat t side by side).  Needs the ``compare`` extra (potpourri3d).
+
+``--cloud N``: N points sampled from spot (point 0 at vertex 2272), this package's
+``PointCloud`` against potpourri3d's ``PointCloudHeatSolver``; errors at the points against
+the exact distance on the mesh and against this package's mesh solve (alpha_hat 0.05), both
+interpolated from the mesh's vertices; benchmarks/results/cloud.csv and docs/point_cloud.png.
 """
 
 import argparse
@@ -218,14 +224,80 @@ def alpha_hat_grid(path):
         tile([top, bottom], path, ["this package", "heat method"], titles, cell_width=2.6)
 
 
+def clouds(count):
+    """Rows of the point-cloud comparison on ``count`` points sampled from spot, and the picture."""
+    import potpourri3d as pp3d
+    import trimesh
+
+    mesh, source = wrd.load_mesh(wrd.data_path("spot_rr.off")), 2272
+    P, _ = trimesh.sample.sample_surface(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), count - 1, seed=0)
+    P = np.concatenate([mesh.vertices[source][None], P])
+    at = wrd.surface_points(mesh, P)
+
+    def at_points(u):
+        return np.array([np.asarray(b) @ u[mesh.faces[f]] for f, b in at])
+
+    _, exact = exact_distance(mesh, source)
+    references = {"exact": at_points(exact),
+                  "mesh 0.05": at_points(wrd.DistanceSolver(mesh, alpha_hat=0.05).solve([source]).distance)}
+    fields, rows = {"exact on the mesh": references["exact"]}, []
+    build, cloud = median_time(lambda: wrd.PointCloud(P), 1)
+    for a in (0.0, 0.05):
+        solver = wrd.DistanceSolver(cloud, alpha_hat=a)
+        solve, res = median_time(lambda: solver.solve([0]), 1)
+        fields[f"this PointCloud, alpha_hat={a:g}"] = res.distance
+        rows.append((f"this PointCloud, alpha_hat={a:g}", build, solve, res.iterations, res.distance))
+    setup, heat = median_time(lambda: pp3d.PointCloudHeatSolver(P), 1)
+    solve, u = median_time(lambda: heat.compute_distance(0), 1)
+    fields["potpourri3d PointCloudHeatSolver"] = u
+    rows.append(("potpourri3d PointCloudHeatSolver", setup, solve, "", u))
+    out = []
+    for method, setup, solve, iterations, u in rows:
+        row = dict(points=count, method=method, setup_s=setup, solve_s=solve, admm_iterations=iterations)
+        for name, ref in references.items():
+            far = ref > 0.05 * ref.max()
+            row[f"median_rel_error_vs_{name.replace(' ', '_')}_pct"] = 100 * np.median(np.abs(u[far] - ref[far]) / ref[far])
+        out.append(row)
+    _cloud_picture(P, fields, os.path.join(DOCS, "point_cloud.png"))
+    return out
+
+
+def _cloud_picture(P, fields, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    show = np.random.default_rng(0).permutation(len(P))[:30000]
+    fig = plt.figure(figsize=(3.2 * len(fields), 3.4))
+    top = max(np.nanmax(u) for u in fields.values())
+    for i, (label, u) in enumerate(fields.items()):
+        ax = fig.add_subplot(1, len(fields), i + 1, projection="3d")
+        ax.scatter(P[show, 0], P[show, 2], P[show, 1], c=np.mod(u[show] / top * 20, 1.0), cmap="twilight", s=0.4,
+                   linewidths=0)
+        ax.view_init(15, 35)
+        ax.set_axis_off()
+        ax.set_title(label, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="spot and the blob only, 1 repeat, no pictures")
+    ap.add_argument("--cloud", type=int, metavar="N", help="only the point-cloud comparison, on N points")
     args = ap.parse_args()
     try:
         import potpourri3d  # noqa: F401
     except ImportError:
         sys.exit("compare.py needs potpourri3d: pip install -e '.[compare]'")
+    if args.cloud is not None:
+        warm_up()
+        rows = clouds(args.cloud)
+        for row in rows:
+            print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()))
+        write_csv(rows, os.path.join(RESULTS, "cloud.csv"))
+        return
     repeats = 1 if args.quick else REPEATS
     warm_up()
     rows, rendered = [], []

@@ -58,7 +58,34 @@ def test_refinement_keeps_the_surface_and_conforms():
     assert moved[:4].max() < 1e-14 and np.allclose(R.displacement, moved)
     # the last point is 1e-4 from an edge (below tolerances.point_snap): moved onto it
     assert R.point_vertices[4] != R.point_vertices[3] and 0 < moved[4] < 1e-3 * _mean_edge(mesh)
-    assert R.mesh.n_vertices == mesh.n_vertices + 5
+    assert np.unique(R.point_vertices).size == 5
+
+
+def test_no_obtuse_angle_at_a_source_point_and_no_negative_distance():
+    """A split alone leaves an angle >= 120 degrees at a point inside a face; with the feet of the
+    perpendiculars every angle at the point is <= 90 degrees, and u stays >= 0 (it went to -0.4 h)."""
+    mesh = wrd.load_mesh(wrd.data_path("spot_rr.off"))
+    rng = np.random.default_rng(0)
+    faces, blocked = [], np.zeros(mesh.n_vertices, dtype=bool)
+    for f in rng.permutation(mesh.n_elements):      # faces apart, so that no two points' feet interact
+        if not blocked[mesh.faces[f]].any():
+            faces.append(f)
+            blocked[mesh.faces[np.isin(mesh.faces, mesh.faces[f]).any(axis=1)].ravel()] = True
+        if len(faces) == 40:
+            break
+    faces = np.array(faces)
+    bary = rng.dirichlet([2, 2, 2], size=40)
+    bary[:10] = [[0.59, 0.09, 0.32]] * 10          # near an edge
+    bary[10:12] = [[0.5, 0.5, 0.0], [0.0, 0.3, 0.7]]   # on edges
+    R = refine(mesh, faces, bary)
+    V, F = R.mesh.vertices, R.mesh.faces
+    for v in R.point_vertices:
+        for tri in F[(F == v).any(axis=1)]:
+            a, b = (V[w] - V[v] for w in tri if w != v)
+            assert np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))) <= 90 + 1e-6
+    solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)
+    for f, b in ((3085, (0.59, 0.09, 0.32)), (4100, (0.08, 0.62, 0.30))):
+        assert solver.solve(points=[(f, b)]).refined_distance.min() >= 0.0
 
 
 def test_barycentric_corner_equals_the_vertex_solve():
@@ -69,12 +96,13 @@ def test_barycentric_corner_equals_the_vertex_solve():
     vertex = solver.solve([2272]).distance
     point = solver.solve(points=[(face, tuple(b))]).distance
     assert np.abs(point - vertex).max() <= 1e-8 * vertex.max()
-    # a batch shares one refined mesh: column 0 is solved on the mesh refined at column 1's point
+    # a batch shares one refined mesh: column 0 is solved on the mesh refined at column 1's point, in
+    # its source's face (a change of the discretization next to the source: 0.2% of the max here)
     inside = solver.solve(points=[(face, (0.2, 0.3, 0.5))]).distance
     many = solver.solve_many(points=[[(face, b)], [(face, (0.2, 0.3, 0.5))]])
     assert many.distance.shape == (mesh.n_vertices, 2)
     assert np.abs(many.distance[:, 1] - inside).max() <= 1e-6 * inside.max()
-    assert np.abs(many.distance[:, 0] - vertex).max() <= 1e-4 * vertex.max()
+    assert np.abs(many.distance[:, 0] - vertex).max() <= 5e-3 * vertex.max()
     assert "refined_mesh" in many and many.refined_distance.shape == (many.refined_mesh.n_vertices, 2)
 
 
@@ -87,7 +115,8 @@ def test_point_in_a_face_converges_to_the_euclidean_distance():
             mesh = _disk(rings)
             (face, b), = wrd.surface_points(mesh, p)
             res = wrd.DistanceSolver(mesh, alpha_hat=0.0).solve(points=[(face, b)])
-            assert res.refined_distance[res.refined_mesh.n_vertices - 1] == 0.0
+            zero = np.flatnonzero(res.refined_distance == 0.0)
+            assert zero.size == 1 and np.allclose(res.refined_mesh.vertices[zero[0]], p, atol=1e-15)
             errors.append(np.abs(res.distance - np.linalg.norm(mesh.vertices - p, axis=1)).max() / _mean_edge(mesh))
     errors = np.array(errors) * np.array([1 / 6, 1 / 12, 1 / 24]) / (1 / 6)     # in units of the coarsest h
     assert errors[1] < 0.75 * errors[0] and errors[2] < 0.75 * errors[1]
@@ -99,9 +128,9 @@ def test_points_on_edges_and_vertices_and_combined_sources():
     F = mesh.faces
     res = solver.solve([0], points=[(3, (0.5, 0.5, 0.0)), (7, (0.0, 0.0, 1.0))])
     assert res.distance[0] == 0 and res.distance[F[7, 2]] == 0
-    edge_vertex = res.refined_mesh.n_vertices - 1
-    assert res.refined_distance[edge_vertex] == 0
-    assert np.allclose(res.refined_mesh.vertices[edge_vertex], mesh.vertices[F[3, :2]].mean(axis=0))
+    new_zero = np.flatnonzero(res.refined_distance[mesh.n_vertices:] == 0) + mesh.n_vertices
+    assert new_zero.size == 1
+    assert np.allclose(res.refined_mesh.vertices[new_zero[0]], mesh.vertices[F[3, :2]].mean(axis=0))
 
 
 def test_refined_problem_matches_the_conic_solve():

@@ -155,7 +155,7 @@ class FaceTriangulation:
         rows = [self.xy[i] - self.xy[d] for i in (a, b, c)]
         m = np.array([[x, y, x * x + y * y] for x, y in rows])
         scale = max(float(np.abs(m[:, 2]).max()), 1e-300)
-        return np.linalg.det(m) > 1e-12 * scale * scale
+        return np.linalg.det(m) > 1e-9 * scale * scale
 
     def _convex(self, a, d, b, c):
         """Whether the quadrilateral a, d, b, c is strictly convex (its diagonal c-d can replace a-b)."""

@@ -5,7 +5,11 @@ sum 1), at sum_i b_i v_i. :func:`refine` inserts points into the mesh: a point o
 face's interior splits that face, a point on an edge splits the edge (both faces beside
 it), a point at a vertex is that vertex; the faces that received points are then
 re-triangulated to Delaunay in their own plane, so the surface does not change, and
-the original vertices keep their numbers. A source condition u = 0 at the inserted
+the original vertices keep their numbers. A source point (not a curve's) also gets the feet
+of its perpendiculars on the sides of its face (of both faces for a point on an edge): its
+triangles then have no obtuse angle at it, which a split alone leaves (the angles at an
+inside point sum to 360 degrees over three triangles) and which breaks the discrete maximum
+principle (u went negative next to such points, by up to 0.4 h on spot). A source condition u = 0 at the inserted
 vertex then holds at the point itself (docs/method.md, "Sources anywhere").
 A curve's segment between two points of one face becomes a chain of edges, so u = 0 at
 its vertices gives u = 0 all along it (u is linear on each edge).
@@ -24,6 +28,10 @@ from .face_triangulation import FaceTriangulation
 from .mesh import Mesh
 
 __all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
+
+_FOOT_MARGIN = 0.05
+"""A source point's perpendicular feet on its face's sides are inserted where they fall at least
+this fraction of the side away from its ends (so no edge shorter than that is made)."""
 
 
 def check_surface_points(mesh, points, name="points"):
@@ -185,6 +193,26 @@ def refine(mesh, faces, bary, chains=()):
         positions.append(x)
         return len(positions) - 1
 
+    def edge_vertex(a, c, t):
+        """The vertex at (1 - t) v_a + t v_c on edge a-c (a new one unless one is within snap)."""
+        lo, hi, t = (a, c, t) if a < c else (c, a, 1.0 - t)
+        bucket = edge_points.setdefault((lo, hi), [])
+        hit = next((e for e in bucket if abs(e[0] - t) <= snap), None)
+        if hit is None:
+            hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi])]
+            bucket.append(hit)
+        return hit[1]
+
+    def add_feet(x, f):
+        """The feet of the perpendiculars from x onto the sides of face f, where they fall inside."""
+        for s in range(3):
+            a, c = T[f, s], T[f, (s + 1) % 3]
+            e = V[c] - V[a]
+            t = (x - V[a]) @ e / (e @ e)
+            if _FOOT_MARGIN < t < 1 - _FOOT_MARGIN and np.linalg.norm(x - V[a] - t * e) > snap * np.sqrt(e @ e):
+                edge_vertex(a, c, t)
+
+    on_curves = {i for chain in chains for i in chain}
     vertex_of = np.empty(len(faces), dtype=np.int64)
     for i, (f, b) in enumerate(zip(faces, bary)):
         corners = T[f]
@@ -195,22 +223,22 @@ def refine(mesh, faces, bary, chains=()):
         s = int(np.argmin(b))
         if b[s] <= snap:
             a, c = corners[(s + 1) % 3], corners[(s + 2) % 3]
-            wa, wc = b[(s + 1) % 3], b[(s + 2) % 3]
-            lo, hi, t = (a, c, wc / (wa + wc)) if a < c else (c, a, wa / (wa + wc))
-            bucket = edge_points.setdefault((lo, hi), [])
-            hit = next((e for e in bucket if abs(e[0] - t) <= snap), None)
-            if hit is None:
-                hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi])]
-                bucket.append(hit)
-            vertex_of[i] = hit[1]
+            t = b[(s + 2) % 3] / (b[(s + 1) % 3] + b[(s + 2) % 3])
+            vertex_of[i] = edge_vertex(a, c, t)
+            if i not in on_curves:
+                for g in _faces_of_edge(mesh, a, c):
+                    add_feet(positions[vertex_of[i]], g)
             continue
         bucket = face_points.setdefault(int(f), [])
         hit = next((e for e in bucket if np.abs(e[0] - b).max() <= snap), None)
         if hit is None:
             hit = [b, new_vertex(b @ V[corners])]
             bucket.append(hit)
+            if i not in on_curves:
+                add_feet(positions[hit[1]], f)
         vertex_of[i] = hit[1]
     requested = np.einsum("pi,pij->pj", bary, V[T[faces]])
+    sources = set(vertex_of.tolist())
 
     # the faces of each chain segment: the common face of its two points
     segments = {}
@@ -231,13 +259,18 @@ def refine(mesh, faces, bary, chains=()):
         corners = T[f]
         P = _plane_frame(V[corners])
         ft = FaceTriangulation(P, corners.tolist())
+        # inside points first, so that each is joined to the corners; then the sides' points (the
+        # feet of the perpendiculars split the triangles at the inside point into right triangles)
+        for b, v in face_points.get(f, []):
+            ft.insert(b @ P, v)
+        on_sides = []
         for s in range(3):
             a, c = corners[s], corners[(s + 1) % 3]
             for t, v in edge_points.get((min(a, c), max(a, c)), []):
                 ts = t if a < c else 1 - t
-                ft.split_side(s, (1 - ts) * P[s] + ts * P[(s + 1) % 3], v)
-        for b, v in face_points.get(f, []):
-            ft.insert(b @ P, v)
+                on_sides.append((v not in sources, s, (1 - ts) * P[s] + ts * P[(s + 1) % 3], v))
+        for _, s, xy, v in sorted(on_sides, key=lambda item: item[:2]):   # the points themselves before feet
+            ft.split_side(s, xy, v)
         ft.make_delaunay()
         local = {label: i for i, label in enumerate(ft.labels)}
         for a, c in segments.get(f, []):

@@ -213,7 +213,8 @@ class DistanceSolver:
         """Distances from k source sets as one batched ADMM: ``distance`` is (n, k).
 
         ``points``, ``curves``: k lists of surface points, k curves (see :meth:`solve`), one per
-        column, alone or with k ``source_sets``; all columns share one refined mesh.
+        column, alone or with k ``source_sets``; all columns share one refined mesh (so a column
+        differs from its own solve where another column's point refines the mesh near its sources).
         ``initial``: a result with k columns to start from (see :meth:`solve`); ``keep_duals``:
         return ``duals`` (m, 3, k) too, which makes the result a full warm start; ``schedule``:
         the penalty schedule of every column (see :meth:`solve`).
