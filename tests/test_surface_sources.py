@@ -270,3 +270,38 @@ def test_distance_matrix_with_landmark_points(tmp_path):
         wrd.distance_matrix(mesh, sources=[0], points=points)
     with pytest.raises(ValueError, match=r"expected distinct points, got points 0 and 1 at the same place"):
         wrd.distance_matrix(mesh, points=[points[0], points[0]])
+
+
+# ---------------------------------------------------------------------- tetrahedral meshes
+def _boundary_area(mesh):
+    F, _ = wrd.boundary_faces(mesh)
+    V = mesh.vertices
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
+
+
+def test_points_and_curves_on_the_boundary_of_a_tet_mesh():
+    mesh = wrd.Mesh(*meshes.ball_tets(2, 4))
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(4, 3))
+    X /= np.linalg.norm(X, axis=1, keepdims=True)
+    points = wrd.surface_points(mesh, X, max_distance=0.1)
+    solver = wrd.DistanceSolver(mesh, alpha_hat=0.05)
+    res = solver.solve(points=points)
+    R = res.refined_mesh
+    # the same solid, conforming: no face in more than two tetrahedra, the boundary as before
+    assert R.element_volumes.sum() == pytest.approx(mesh.element_volumes.sum(), rel=1e-12)
+    faces = np.sort(R.elements[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3), axis=1)
+    _, counts = np.unique(faces, axis=0, return_counts=True)
+    assert counts.max() == 2 and _boundary_area(R) == pytest.approx(_boundary_area(mesh), rel=1e-12)
+    F, _ = wrd.boundary_faces(mesh)
+    at = np.array([np.asarray(b) @ mesh.vertices[F[f]] for f, b in points])
+    zero = R.vertices[res.refined_distance == 0]
+    assert len(zero) == 4 and all(np.linalg.norm(zero - x, axis=1).min() < 1e-12 for x in at)
+    # a boundary point leaves u at most slightly negative next to it (the split tetrahedra are not Delaunay)
+    assert res.refined_distance.min() > -0.05 * _mean_edge(wrd.Mesh(mesh.vertices, F))
+    th = np.linspace(0, 2 * np.pi, 10, endpoint=False)
+    ring = wrd.surface_points(mesh, np.stack([np.cos(th), np.sin(th), 0 * th], axis=1), max_distance=0.1)
+    res = solver.solve(curve=ring, closed=True)
+    on_curve = res.refined_mesh.vertices[res.refined_distance == 0]
+    assert len(on_curve) > 10 and np.abs(on_curve[:, 2]).max() < 1e-12
+    assert "signed_distance" not in res

@@ -13,6 +13,7 @@ from .errors import ConvergenceWarning, MeshError, WorkerError
 from .geometry.mesh import Mesh, boundary_vertices
 from .geometry.mesh_io import data_path, load_mesh
 from .geometry.surface_points import surface_points
+from .geometry.boundary_refinement import boundary_faces
 from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
 from .geometry.regularizers import REGULARIZERS
@@ -27,7 +28,7 @@ __version__ = "0.1.0"
 
 _moved.install()
 
-__all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "PointCloud", "Operators", "build_operators",
+__all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "show", "__version__"]

@@ -1,7 +1,8 @@
 """Points and curves on a triangle mesh, made vertices and edges of a refined mesh.
 
 A surface point is a face and barycentric coordinates (b0, b1, b2) on it (b_i >= 0,
-sum 1), at sum_i b_i v_i. :func:`refine` inserts points into the mesh: a point on a
+sum 1), at sum_i b_i v_i; on a tetrahedral mesh, a face of its boundary
+(:mod:`warp_regdist.geometry.boundary_refinement`). :func:`refine` inserts points into the mesh: a point on a
 face's interior splits that face, a point on an edge splits the edge (both faces beside
 it), a point at a vertex is that vertex; the faces that received points are then
 re-triangulated to Delaunay in their own plane, so the surface does not change, and
@@ -38,8 +39,10 @@ def check_surface_points(mesh, points, name="points"):
     """Validated surface points: [(face, (b0, b1, b2)), ...] -> faces (p,) int64, bary (p, 3) float64."""
     if mesh.element_weights is not None:
         raise ValueError(f"expected a triangle mesh for {name}, got a PointCloud (its sources are point indices)")
-    if mesh.element_dim != 2:
-        raise ValueError(f"expected a triangle mesh for {name} given as (face, barycentric), got a tetrahedral mesh")
+    if mesh.element_dim == 3:
+        from .boundary_refinement import boundary_surface
+
+        mesh = boundary_surface(mesh)
     if isinstance(points, (str, bytes)) or not hasattr(points, "__len__"):
         raise ValueError(f"expected {name} as a list of (face, (b0, b1, b2)), got {points!r}")
     if len(points) == 0:
@@ -71,7 +74,8 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
     Parameters
     ----------
     mesh : Mesh
-        Triangle mesh.
+        Triangle mesh, or tetrahedral mesh: then its boundary, ``face`` indexing
+        :func:`~warp_regdist.boundary_faces`.
     xyz : (p, 3) array_like
         Points in space.
     return_distance : bool
@@ -80,9 +84,12 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
         Refuse points farther than this from the surface; None: 5% of the mesh's bounding box
         diagonal. math.inf accepts any point.
     """
-    if mesh.element_dim != 2 or mesh.element_weights is not None:
-        raise ValueError("expected a triangle mesh for surface_points, got a "
-                         f"{'tetrahedral mesh' if mesh.element_dim == 3 else 'PointCloud'}")
+    if mesh.element_weights is not None:
+        raise ValueError("expected a triangle or tetrahedral mesh for surface_points, got a PointCloud")
+    if mesh.element_dim == 3:
+        from .boundary_refinement import boundary_surface
+
+        mesh = boundary_surface(mesh)
     X = np.asarray(xyz, dtype=np.float64) if np.size(xyz) else np.zeros((0, 3))
     if X.ndim == 1 and X.size == 3:
         X = X[None]
@@ -167,6 +174,8 @@ class Refinement:
         For every segment chain given, its vertices in order.
     parent : (m',) ndarray of int64
         The original face of every refined face.
+    edge_vertices : dict
+        (lo, hi) original edge (lo < hi) -> the new vertices on it, in order from lo.
     """
 
     mesh: Mesh
@@ -175,6 +184,7 @@ class Refinement:
     displacement: np.ndarray
     curve_vertices: list
     parent: np.ndarray
+    edge_vertices: dict
 
 
 def refine(mesh, faces, bary, chains=()):
@@ -302,7 +312,8 @@ def refine(mesh, faces, bary, chains=()):
         curves.append(np.asarray(verts, dtype=np.int64))
     return Refinement(mesh=refined, n_original=n, point_vertices=vertex_of,
                       displacement=np.linalg.norm(X[vertex_of] - requested, axis=1), curve_vertices=curves,
-                      parent=parents)
+                      parent=parents, edge_vertices={key: [v for _, v in sorted(bucket)] for key, bucket in
+                                                     edge_points.items()})
 
 
 def _plane_frame(corners):

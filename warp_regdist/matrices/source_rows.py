@@ -24,6 +24,7 @@ from ..arguments import check_weight, parse_workers
 from ..kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from ..geometry.mesh import Mesh
+from ..geometry.boundary_refinement import refine_boundary
 from ..geometry.surface_points import check_surface_points, refine
 from ..errors import ConvergenceWarning
 from .row_solves import solve_rows
@@ -148,7 +149,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
 def _landmarks(mesh, points):
     """Surface points -> (the refined mesh, their (k,) vertices on it, a SHA-256 of the points)."""
     faces, bary = check_surface_points(mesh, points, "points")
-    R = refine(mesh, faces, bary)
+    R = refine(mesh, faces, bary) if mesh.element_dim == 2 else refine_boundary(mesh, faces, bary)
     vertices, first = np.unique(R.point_vertices, return_index=True)
     if vertices.size != len(faces):
         twice = np.setdiff1d(np.arange(len(faces)), first)[0]

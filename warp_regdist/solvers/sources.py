@@ -12,6 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
+from ..geometry.boundary_refinement import boundary_surface, refine_boundary
 from ..geometry.curves import trace_curve
 from ..geometry.surface_points import check_surface_points, refine
 
@@ -99,24 +100,25 @@ class SurfaceSources:
 def surface_sources(mesh, k, sets, points, curves, closed):
     """The refined mesh of k columns: ``sets`` (k lists of vertices or None), ``points`` (k lists
     of surface points or None), ``curves`` (k curves, each a list of surface points, or None)."""
+    surface = boundary_surface(mesh)
     faces, bary, chains, own_points, own_curves = [], [], [], [], []
     for j in range(k):
-        f, b = (check_surface_points(mesh, points[j], f"points of column {j}") if points is not None
+        f, b = (check_surface_points(surface, points[j], f"points of column {j}") if points is not None
                 else (np.zeros(0, np.int64), np.zeros((0, 3))))
         own_points.append(np.arange(len(f)) + sum(len(x) for x in faces))
         faces.append(f)
         bary.append(b)
         own_curves.append([])
         if curves is not None:
-            cf, cb = check_surface_points(mesh, curves[j], f"curve of column {j}")
-            cf, cb, chain = trace_curve(mesh, cf, cb, closed)
+            cf, cb = check_surface_points(surface, curves[j], f"curve of column {j}")
+            cf, cb, chain = trace_curve(surface, cf, cb, closed)
             offset = sum(len(x) for x in faces)
             faces.append(cf)
             bary.append(cb)
             own_curves[j].append(len(chains))
             chains.append([offset + i for i in chain])
     F, B = np.concatenate(faces), np.concatenate(bary)
-    R = refine(mesh, F, B, chains)
+    R = refine(mesh, F, B, chains) if mesh.element_dim == 2 else refine_boundary(mesh, F, B, chains)
     out_sets, out_curves = [], []
     for j in range(k):
         s = [] if sets is None else [np.asarray(sets[j], dtype=np.int64).ravel()]
@@ -161,6 +163,6 @@ def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, 
     res["refined_mesh"] = S.refinement.mesh
     res["refined_distance"] = res.distance
     res["distance"] = res.distance[:n]
-    if closed:
+    if closed and solver.mesh.element_dim == 2:
         res["signed_distance"] = np.stack([S.signs(j)[:n] for j in range(k)], axis=1) * res.distance
     return res
