@@ -268,15 +268,20 @@ def _cloud_picture(P, fields, path):
     import matplotlib.pyplot as plt
 
     show = np.random.default_rng(0).permutation(len(P))[:30000]
-    fig = plt.figure(figsize=(3.2 * len(fields), 3.4))
+    fig = plt.figure(figsize=(4.2 * len(fields), 4.4))
     top = max(np.nanmax(u) for u in fields.values())
+    centre, half = P.mean(axis=0), 0.5 * np.ptp(P, axis=0).max()
     for i, (label, u) in enumerate(fields.items()):
         ax = fig.add_subplot(1, len(fields), i + 1, projection="3d")
-        ax.scatter(P[show, 0], P[show, 2], P[show, 1], c=np.mod(u[show] / top * 20, 1.0), cmap="twilight", s=0.4,
-                   linewidths=0)
+        colour = plt.get_cmap("viridis")(u[show] / top)
+        colour[np.mod(u[show] / top * 16, 1.0) < 0.12, :3] = 0.1           # 16 isoline bands
+        ax.scatter(P[show, 0], P[show, 2], P[show, 1], c=colour, s=2.0, linewidths=0)
+        for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre[[0, 2, 1]]):
+            set_lim(c - 0.75 * half, c + 0.75 * half)
+        ax.set_box_aspect((1, 1, 1))
         ax.view_init(15, 35)
         ax.set_axis_off()
-        ax.set_title(label, fontsize=8)
+        ax.set_title(label, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

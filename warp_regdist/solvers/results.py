@@ -33,6 +33,11 @@ class DistanceResult(OptimizeResult):
         from :meth:`~warp_regdist.DistanceSolver.solve`, from :meth:`~warp_regdist.DistanceSolver.solve_many` with
         ``keep_duals=True``); with ``penalty`` (rho / L, float or (k,)) they make the result a
         warm start (``initial=``).
+    refined_mesh, refined_distance : Mesh, (n',) or (n', k) ndarray
+        With points or curves as sources: the mesh refined at them (its first n vertices are
+        this mesh's) and the distance on all its vertices; ``duals`` then belong to it.
+    signed_distance : (n,) or (n, k) ndarray
+        With ``closed=True`` on a triangle mesh: ``distance``, negative on the left of the curve.
     """
 
 
