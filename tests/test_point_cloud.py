@@ -70,7 +70,7 @@ def test_bad_clouds(points, message):
 
 def test_cloud_is_refused_where_faces_are_needed():
     cloud = wrd.PointCloud(_fibonacci_sphere(200))
-    with pytest.raises(ValueError, match="expected a triangle mesh for surface_points, got a PointCloud"):
+    with pytest.raises(ValueError, match="expected a triangle or tetrahedral mesh for surface_points, got a PointCloud"):
         wrd.surface_points(cloud, [[1, 0, 0]])
     with pytest.raises(ValueError, match=r"expected a triangle mesh for points of column 0, got a PointCloud"):
         wrd.DistanceSolver(cloud).solve(points=[(0, (1, 0, 0))])

@@ -272,13 +272,14 @@ def test_cli_volume_point_sources_are_vertices(tmp_path, capsys):
     code = main(["volume", str(tmp_path / "ball.stl"), "--sources", str(tmp_path / "points.csv"),
                  "--output", str(out), "--max-volume", "0.05"])
     assert code == 0, capsys.readouterr().err
-    assert "2 surface points, vertices 162, 163 (moved onto the surface by at most" in capsys.readouterr().out
+    said = capsys.readouterr().out
     read = meshio.read(out)
     u = read.point_data["distance"]
     zero = np.flatnonzero(u == 0.0)
+    assert f"2 surface points, vertices {zero[0]}, {zero[1]} (moved onto the surface by at most" in said
     candidates = [trimesh.triangles.closest_point(V[F], np.repeat(p[None], len(F), axis=0)) for p in points]
     expected = [c[np.argmin(np.linalg.norm(c - p, axis=1))] for c, p in zip(candidates, points)]
-    assert zero.tolist() == [162, 163] and np.allclose(read.points[zero], expected, atol=1e-12)
+    assert zero.size == 2 and zero.min() >= 162 and np.allclose(read.points[zero], expected, atol=1e-12)
     (tmp_path / "far.csv").write_text("0,0,0\n")
     code = main(["volume", str(tmp_path / "ball.stl"), "--sources", str(tmp_path / "far.csv"), "--output", str(out)])
     assert code == 2

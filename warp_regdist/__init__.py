@@ -10,10 +10,9 @@ from .solvers.all_pairs_admm import all_pairs
 from .output.export import save_vtu
 from .geometry.line_field import line_field
 from .errors import ConvergenceWarning, MeshError, WorkerError
-from .geometry.mesh import Mesh, boundary_vertices
+from .geometry.mesh import Mesh, boundary_faces, boundary_vertices
 from .geometry.mesh_io import data_path, load_mesh
 from .geometry.surface_points import surface_points
-from .geometry.boundary_refinement import boundary_faces
 from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
 from .geometry.regularizers import REGULARIZERS

@@ -18,32 +18,10 @@ import dataclasses
 import numpy as np
 
 from .face_triangulation import FaceTriangulation
-from .mesh import Mesh, _row_keys
+from .mesh import _TET_FACES, Mesh, boundary_faces
 from .surface_points import _plane_frame, refine
 
-__all__ = ["boundary_faces", "boundary_surface", "refine_boundary"]
-
-_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-"""The faces of a positively oriented tetrahedron (v0, v1, v2, v3), each opposite its vertex, outward."""
-
-
-def boundary_faces(mesh):
-    """The boundary triangles of a tetrahedral mesh, outward: (b, 3) int64, and the (b,) tetrahedron of each."""
-    if mesh.element_dim != 3:
-        raise ValueError("expected a tetrahedral mesh for boundary_faces, got a triangle mesh")
-    T = mesh.elements
-    faces = T[:, _TET_FACES].reshape(-1, 3)
-    key = _row_keys(np.sort(faces, axis=1))
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    outer = np.flatnonzero(counts[inverse.ravel()] == 1)
-    return faces[outer], outer // 4
-
-
-def boundary_surface(mesh):
-    """The boundary of a tetrahedral mesh as a triangle :class:`Mesh` with all of its vertices (the
-    interior ones unreferenced); a triangle mesh is returned as it is."""
-    return mesh if mesh.element_dim == 2 else Mesh(mesh.vertices, boundary_faces(mesh)[0])
-
+__all__ = ["refine_boundary"]
 
 def refine_boundary(mesh, faces, bary, chains=()):
     """:func:`~warp_regdist.geometry.surface_points.refine` for points on the boundary of a tetrahedral mesh

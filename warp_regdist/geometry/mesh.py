@@ -16,7 +16,7 @@ import scipy.sparse.csgraph as csgraph
 from ..errors import MeshError
 from ..tolerances import tolerances
 
-__all__ = ["Mesh", "boundary_vertices"]
+__all__ = ["Mesh", "boundary_vertices", "boundary_faces", "boundary_surface"]
 
 
 class Mesh:
@@ -205,6 +205,28 @@ def boundary_vertices(mesh):
     key = np.sort(facets, axis=1)
     _, inv, counts = np.unique(_row_keys(key), return_inverse=True, return_counts=True)
     return np.unique(key[counts[inv] == 1]).astype(np.int64)
+
+
+_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+"""The faces of a positively oriented tetrahedron (v0, v1, v2, v3), each opposite its vertex, outward."""
+
+
+def boundary_faces(mesh):
+    """The boundary triangles of a tetrahedral mesh, outward: (b, 3) int64, and the (b,) tetrahedron of each."""
+    if mesh.element_dim != 3:
+        raise ValueError("expected a tetrahedral mesh for boundary_faces, got a triangle mesh")
+    T = mesh.elements
+    faces = T[:, _TET_FACES].reshape(-1, 3)
+    key = _row_keys(np.sort(faces, axis=1))
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    outer = np.flatnonzero(counts[inverse.ravel()] == 1)
+    return faces[outer], outer // 4
+
+
+def boundary_surface(mesh):
+    """The boundary of a tetrahedral mesh as a triangle :class:`Mesh` with all of its vertices (the
+    interior ones unreferenced); a triangle mesh is returned as it is."""
+    return mesh if mesh.element_dim == 2 else Mesh(mesh.vertices, boundary_faces(mesh)[0])
 
 
 def _read_only(array):

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from ..errors import MeshError
 from ..tolerances import tolerances
 from .face_triangulation import FaceTriangulation
-from .mesh import Mesh
+from .mesh import Mesh, boundary_surface
 
 __all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
 
@@ -40,8 +40,6 @@ def check_surface_points(mesh, points, name="points"):
     if mesh.element_weights is not None:
         raise ValueError(f"expected a triangle mesh for {name}, got a PointCloud (its sources are point indices)")
     if mesh.element_dim == 3:
-        from .boundary_refinement import boundary_surface
-
         mesh = boundary_surface(mesh)
     if isinstance(points, (str, bytes)) or not hasattr(points, "__len__"):
         raise ValueError(f"expected {name} as a list of (face, (b0, b1, b2)), got {points!r}")
@@ -87,8 +85,6 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
     if mesh.element_weights is not None:
         raise ValueError("expected a triangle or tetrahedral mesh for surface_points, got a PointCloud")
     if mesh.element_dim == 3:
-        from .boundary_refinement import boundary_surface
-
         mesh = boundary_surface(mesh)
     X = np.asarray(xyz, dtype=np.float64) if np.size(xyz) else np.zeros((0, 3))
     if X.ndim == 1 and X.size == 3:
