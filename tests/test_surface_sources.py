@@ -305,3 +305,18 @@ def test_points_and_curves_on_the_boundary_of_a_tet_mesh():
     on_curve = res.refined_mesh.vertices[res.refined_distance == 0]
     assert len(on_curve) > 10 and np.abs(on_curve[:, 2]).max() < 1e-12
     assert "signed_distance" not in res
+
+
+def test_cli_matrix_of_landmark_points(tmp_path, capsys):
+    from warp_regdist.cli import main
+    import trimesh
+
+    mesh = _sphere(2)
+    trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp_path / "sphere.off")
+    X = np.array([[0.3, 0.2, 0.93], [0.0, -0.99, 0.1], [0.6, 0.6, -0.5]])
+    (tmp_path / "landmarks.csv").write_text("".join(f"{x},{y},{z}\n" for x, y, z in X))
+    out = tmp_path / "D.npy"
+    assert main(["matrix", str(tmp_path / "sphere.off"), "--sources", str(tmp_path / "landmarks.csv"),
+                 "--output", str(out), "--quiet"]) == 0
+    expected = wrd.distance_matrix(mesh, points=wrd.surface_points(mesh, X))
+    assert np.abs(np.load(out) - expected).max() < 1e-6 * expected.max()   # the OFF file rounds the vertices

@@ -10,7 +10,8 @@ import sys
 
 import numpy as np
 
-from .common import DEMO_ALPHA_HAT, PROG, check_output, load, solver_options, subcommand, warnings_to_stderr
+from .common import (DEMO_ALPHA_HAT, PROG, check_output, load, read_xyz, solver_options, subcommand,
+                     warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -27,8 +28,10 @@ def add_parser(sub) -> None:
         "--sources",
         default="all",
         metavar="all|FILE",
-        help="'all' (default: a row per vertex) or a text file of 0-based vertex indices separated by "
-        "spaces, commas or newlines (a row per index, in the file's order)",
+        help="'all' (default: a row per vertex), a text file of 0-based vertex indices separated by "
+        "spaces, commas or newlines (a row per index, in the file's order), or a .csv file of 'x,y,z' "
+        "rows: landmark points moved to the closest surface point and inserted into the mesh (a row "
+        "each, not symmetrized)",
     )
     matrix.add_argument(
         "--alpha-hat",
@@ -118,12 +121,16 @@ def _matrix_progress(quiet: bool):
 def run(args: argparse.Namespace) -> None:
     import warp as wp
 
-    from .. import distance_matrix
+    from .. import distance_matrix, surface_points
 
     if not (args.output.lower().endswith(".zarr") and os.path.isdir(args.output)):  # a Zarr store is a directory
         check_output(args.output, (".zarr", ".npy"), "--output")
     mesh = load(args.mesh)
-    sources = _matrix_sources(args.sources)
+    points = None
+    if args.sources.lower().endswith(".csv"):
+        points, sources = surface_points(mesh, read_xyz(args.sources, "--sources")), None
+    else:
+        sources = _matrix_sources(args.sources)
     wp.config.log_level = wp.LOG_WARNING
     progress, state = _matrix_progress(args.quiet)
     with contextlib.ExitStack() as stack, warnings_to_stderr():
@@ -131,7 +138,7 @@ def run(args: argparse.Namespace) -> None:
         try:
             D = distance_matrix(mesh, args.alpha_hat, sources=sources, symmetrize=args.symmetrize,
                                 device=args.device, dtype=args.dtype, chunk=args.chunk, client=client,
-                                out=args.output, progress=progress)
+                                out=args.output, progress=progress, points=points)
         except ImportError as exc:
             raise ValueError(f"expected zarr for a .zarr --output (pip install 'warp-regdist[distributed]'), "
                              f"got {exc}") from None
@@ -143,6 +150,6 @@ def run(args: argparse.Namespace) -> None:
         where = "here" if client is None else f"on a Dask cluster ({args.scheduler or f'{args.workers} workers'})"
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. Distance matrix of {D.shape[0]} "
               f"single-source rows, alpha_hat {args.alpha_hat:g}, {args.dtype}, "
-              f"{'symmetrized' if args.symmetrize else 'not symmetrized'}: {-(-D.shape[0] // args.chunk)} blocks of "
+              f"{'symmetrized' if args.symmetrize and points is None else 'not symmetrized'}: {-(-D.shape[0] // args.chunk)} blocks of "
               f"{args.chunk} rows ({state['found']} already written), solved {where} in {state['seconds']:.1f} s. "
               f"Wrote {args.output}.")
