@@ -68,6 +68,10 @@ class Tolerances:
         A source point whose barycentric coordinate on a face is <= this lies on that face's
         edge (or vertex, when 1 - point_snap <= its largest coordinate) and is moved there:
         the triangles it would cut off would be slivers (see warp_regdist.surface_points).
+    curve_snap : float
+        A curve's crossing of an edge within this fraction of the edge from a vertex moves to the
+        vertex (the curve then passes through it): the cuts would leave slivers and obtuse
+        angles next to the curve, where u dipped below 0 (to -0.07 h on spot with 1e-3).
     max_gradient : float
         A result whose gradient exceeds this on some element is reported as not converged,
         with a warning (the constraint is |G u| <= 1, which converged results meet to about
@@ -99,6 +103,7 @@ class Tolerances:
     pairs_change_window: int = 50
     degenerate_element: float = 1e-12
     point_snap: float = 1e-3
+    curve_snap: float = 0.2
     max_gradient: float = 1.5
 
     def __getattr__(self, name):

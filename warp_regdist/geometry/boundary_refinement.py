@@ -23,11 +23,11 @@ from .surface_points import _plane_frame, refine
 
 __all__ = ["refine_boundary"]
 
-def refine_boundary(mesh, faces, bary, chains=()):
+def refine_boundary(mesh, faces, bary, chains=(), feet=None):
     """:func:`~warp_regdist.geometry.surface_points.refine` for points on the boundary of a tetrahedral mesh
     (``faces`` index :func:`boundary_faces`); the Refinement's ``parent`` is the original tetrahedron."""
     F, owner = boundary_faces(mesh)
-    R = refine(Mesh(mesh.vertices, F), faces, bary, chains)
+    R = refine(Mesh(mesh.vertices, F), faces, bary, chains, feet)
     X = list(R.mesh.vertices)
     T = mesh.elements
     split = R.edge_vertices

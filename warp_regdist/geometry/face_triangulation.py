@@ -1,9 +1,9 @@
 """Triangulation of one planar triangle with points on its edges and inside it.
 
 :class:`FaceTriangulation` starts from the triangle (corners 0, 1, 2, counter-clockwise in
-its plane), splits its sides at the given side points, inserts interior points (1 -> 3
-split, or 2 -> 4 on an inner edge), flips inner edges to Delaunay (Lawson), and recovers
-required segments by inserting their midpoints. Everything stays in the triangle's plane,
+its plane), inserts interior points (1 -> 3 split, or 2 -> 4 on an inner edge), splits its
+sides at the given side points, flips inner edges to Delaunay (Lawson), and makes required
+segments edges by flipping the edges that cross them. Everything stays in the triangle's plane,
 so no step changes the surface; the sides are split only at the given points, so the
 triangulations of neighbouring faces that share those side points fit together.
 """
@@ -98,26 +98,51 @@ class FaceTriangulation:
                         continue
                     d = next(i for i in self.triangles[o] if i not in (a, b))
                     if self._in_circle(a, b, c, d) and self._convex(a, d, b, c):
-                        self.triangles[t] = (c, a, d)
-                        self.triangles[o] = (d, b, c)
+                        self._flip(t, o, a, b, c, d)
                         changed = True
 
-    def recover(self, a, b, max_points=64):
-        """Make the segment a-b a chain of edges (inserting midpoints where needed); returns the
-        points on it, in order from a to b."""
-        chain = self._points_on(a, b)
-        for _ in range(max_points):
-            gap = next((i for i in range(len(chain) - 1) if self._triangle_with(chain[i], chain[i + 1]) is None
-                        and self._triangle_with(chain[i + 1], chain[i]) is None), None)
-            if gap is None:
-                for i in range(len(chain) - 1):
-                    self.constrained.add(frozenset((chain[i], chain[i + 1])))
-                return chain
-            i, j = chain[gap], chain[gap + 1]
-            self.insert(0.5 * (self.xy[i] + self.xy[j]), None)
-            self.make_delaunay()
+    def recover(self, a, b):
+        """Make the segment a-b a chain of edges by flipping the edges that cross it (Sloan 1993) and
+        keep those edges from later flips; where it crosses an earlier segment, their crossing is
+        inserted (label None). Returns the points on the segment, in order from a to b."""
+        for _ in range(len(self.xy) + 16):
             chain = self._points_on(a, b)
-        raise RuntimeError(f"could not recover a segment in {max_points} midpoint insertions")
+            if all(self._recover_edge(i, j) for i, j in zip(chain[:-1], chain[1:])):
+                for i, j in zip(chain[:-1], chain[1:]):
+                    self.constrained.add(frozenset((i, j)))
+                return chain
+        raise RuntimeError("could not make a curve segment a chain of edges of its face's triangulation")
+
+    def _recover_edge(self, a, b):
+        """Flip until a-b is an edge (True), or insert its crossing with a constrained edge (False)."""
+        for _ in range(20 * len(self.triangles) + 100):
+            if self._triangle_with(a, b) is not None or self._triangle_with(b, a) is not None:
+                return True
+            for t, tri in enumerate(self.triangles):
+                r = next((r for r in range(3) if self._crosses(tri[r], tri[(r + 1) % 3], a, b)), None)
+                if r is None:
+                    continue
+                u, v, c = tri[r], tri[(r + 1) % 3], tri[(r + 2) % 3]
+                if frozenset((u, v)) in self.constrained:
+                    pu, pv, pa, pb = (self.xy[i] for i in (u, v, a, b))
+                    s = _cross(pb - pa, pu - pa) / (_cross(pb - pa, pu - pa) - _cross(pb - pa, pv - pa))
+                    p = self.insert(pu + s * (pv - pu), None)
+                    self.constrained -= {frozenset((u, v))}
+                    self.constrained |= {frozenset((u, p)), frozenset((p, v))}
+                    return False
+                o = self._triangle_with(v, u)
+                d = next(i for i in self.triangles[o] if i not in (u, v))
+                if self._convex(u, d, v, c):
+                    self._flip(t, o, u, v, c, d)
+                    break
+            else:
+                break
+        raise RuntimeError("could not make a curve segment an edge of its face's triangulation")
+
+    def _flip(self, t, o, a, b, c, d):
+        """Replace the edge a-b of triangles t = (a, b, c) and o = (b, a, d) by c-d."""
+        self.triangles[t] = (c, a, d)
+        self.triangles[o] = (d, b, c)
 
     # ------------------------------------------------------------------ geometry
     def _points_on(self, a, b):
@@ -131,6 +156,12 @@ class FaceTriangulation:
             if -1e-12 <= t <= 1 + 1e-12 and abs(e[0] * d[1] - e[1] * d[0]) <= 1e-10 * dd:
                 out.append((t, i))
         return [i for _, i in sorted(out)]
+
+    def _crosses(self, u, v, a, b):
+        """Whether the segments u-v and a-b cross at a point inside both."""
+        pu, pv, pa, pb = (self.xy[i] for i in (u, v, a, b))
+        return (_cross(pb - pa, pu - pa) * _cross(pb - pa, pv - pa) < 0
+                and _cross(pv - pu, pa - pu) * _cross(pv - pu, pb - pu) < 0)
 
     def _between(self, p, a, b):
         d = self.xy[b] - self.xy[a]

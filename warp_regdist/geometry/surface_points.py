@@ -12,8 +12,8 @@ triangles then have no obtuse angle at it, which a split alone leaves (the angle
 inside point sum to 360 degrees over three triangles) and which breaks the discrete maximum
 principle (u went negative next to such points, by up to 0.4 h on spot). A source condition u = 0 at the inserted
 vertex then holds at the point itself (docs/method.md, "Sources anywhere").
-A curve's segment between two points of one face becomes a chain of edges, so u = 0 at
-its vertices gives u = 0 all along it (u is linear on each edge).
+A curve's segment between two points of one face becomes a chain of edges (by edge flips
+inside the face), so u = 0 at its vertices gives u = 0 all along it (u is linear on each edge).
 """
 
 from __future__ import annotations
@@ -183,11 +183,13 @@ class Refinement:
     edge_vertices: dict
 
 
-def refine(mesh, faces, bary, chains=()):
+def refine(mesh, faces, bary, chains=(), feet=None):
     """Insert surface points (faces (p,), bary (p, 3)) into a triangle mesh.
 
     ``chains``: sequences of point indices; consecutive points of a chain must lie on one common
     face (closure included), and the segment between them becomes a chain of edges.
+    ``feet``: (p,) bool, the points that also get the feet of their perpendiculars (default: those
+    on no chain).
     """
     V, T, n = mesh.vertices, mesh.elements, mesh.n_vertices
     snap = tolerances.point_snap
@@ -219,11 +221,13 @@ def refine(mesh, faces, bary, chains=()):
                 edge_vertex(a, c, t)
 
     on_curves = {i for chain in chains for i in chain}
+    if feet is None:
+        feet = np.array([i not in on_curves for i in range(len(faces))], dtype=bool)
     vertex_of = np.empty(len(faces), dtype=np.int64)
     for i, (f, b) in enumerate(zip(faces, bary)):
         corners = T[f]
         k = int(np.argmax(b))
-        if b[k] >= 1.0 - snap:
+        if b[k] >= 1.0 - (tolerances.curve_snap if i in on_curves else snap):
             vertex_of[i] = corners[k]
             continue
         s = int(np.argmin(b))
@@ -231,7 +235,7 @@ def refine(mesh, faces, bary, chains=()):
             a, c = corners[(s + 1) % 3], corners[(s + 2) % 3]
             t = b[(s + 2) % 3] / (b[(s + 1) % 3] + b[(s + 2) % 3])
             vertex_of[i] = edge_vertex(a, c, t)
-            if i not in on_curves:
+            if feet[i]:
                 for g in _faces_of_edge(mesh, a, c):
                     add_feet(positions[vertex_of[i]], g)
             continue
@@ -240,7 +244,7 @@ def refine(mesh, faces, bary, chains=()):
         if hit is None:
             hit = [b, new_vertex(b @ V[corners])]
             bucket.append(hit)
-            if i not in on_curves:
+            if feet[i]:
                 add_feet(positions[hit[1]], f)
         vertex_of[i] = hit[1]
     requested = np.einsum("pi,pij->pj", bary, V[T[faces]])
@@ -281,13 +285,10 @@ def refine(mesh, faces, bary, chains=()):
         local = {label: i for i, label in enumerate(ft.labels)}
         for a, c in segments.get(f, []):
             chain = ft.recover(local[a], local[c])
-            for idx in chain:
-                if ft.labels[idx] is None:
+            for idx, label in enumerate(ft.labels):
+                if label is None:                      # where the curve crosses itself
                     ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]))
             chain_points[(a, c)] = [ft.labels[idx] for idx in chain]
-        for idx, label in enumerate(ft.labels):
-            if label is None:
-                ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]))
         if len(ft.triangles) > 1:
             keep[f] = False
             new_faces += [[ft.labels[i] for i in tri] for tri in ft.triangles]

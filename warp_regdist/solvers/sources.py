@@ -102,24 +102,27 @@ def surface_sources(mesh, k, sets, points, curves, closed):
     """The refined mesh of k columns: ``sets`` (k lists of vertices or None), ``points`` (k lists
     of surface points or None), ``curves`` (k curves, each a list of surface points, or None)."""
     surface = boundary_surface(mesh)
-    faces, bary, chains, own_points, own_curves = [], [], [], [], []
+    faces, bary, chains, own_points, own_curves, feet = [], [], [], [], [], []
     for j in range(k):
         f, b = (check_surface_points(surface, points[j], f"points of column {j}") if points is not None
                 else (np.zeros(0, np.int64), np.zeros((0, 3))))
         own_points.append(np.arange(len(f)) + sum(len(x) for x in faces))
         faces.append(f)
         bary.append(b)
+        feet.append(np.ones(len(f), dtype=bool))
         own_curves.append([])
         if curves is not None:
             cf, cb = check_surface_points(surface, curves[j], f"curve of column {j}")
+            given = len(cf)
             cf, cb, chain = trace_curve(surface, cf, cb, closed)
             offset = sum(len(x) for x in faces)
             faces.append(cf)
             bary.append(cb)
+            feet.append(np.arange(len(cf)) < given)         # the curve's own points, not its edge crossings
             own_curves[j].append(len(chains))
             chains.append([offset + i for i in chain])
-    F, B = np.concatenate(faces), np.concatenate(bary)
-    R = refine(mesh, F, B, chains) if mesh.element_dim == 2 else refine_boundary(mesh, F, B, chains)
+    F, B, feet = np.concatenate(faces), np.concatenate(bary), np.concatenate(feet)
+    R = refine(mesh, F, B, chains, feet) if mesh.element_dim == 2 else refine_boundary(mesh, F, B, chains, feet)
     out_sets, out_curves = [], []
     for j in range(k):
         s = [] if sets is None else [np.asarray(sets[j], dtype=np.int64).ravel()]
