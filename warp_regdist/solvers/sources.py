@@ -88,7 +88,8 @@ class SurfaceSources:
         inside, outside = set(label[face[left]].tolist()), set(label[face[right]].tolist())
         if not inside or inside & outside:
             raise ValueError("expected closed curves that cut the surface into an inside (left of the curve) and an "
-                             "outside for a signed distance, got curves with the same region on both sides")
+                             "outside for a signed distance, got curves with the same region on both sides (a curve "
+                             "that crosses itself or retraces its path; give points a few faces apart)")
         sign = np.ones(n)
         vertex_face = np.full(n, -1)
         vertex_face[F.ravel()] = np.repeat(np.arange(len(F)), 3)
