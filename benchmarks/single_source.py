@@ -3,6 +3,7 @@
     python benchmarks/single_source.py                # spot, pipe, 100k sphere, 64-source batch
     python benchmarks/single_source.py --large        # also the 655k icosphere and the 1M-vertex sphere
     python benchmarks/single_source.py --quick        # spot and pipe only, 8-source batch
+    python benchmarks/single_source.py --batch        # only the 64-source batch (results/batch.csv)
 
 Prints a markdown table and writes benchmarks/results/single_source.csv. Each case runs in
 its own process (so peak memory is its own); solve times are medians over repeats after
@@ -102,6 +103,11 @@ def run_batch(k):
     solver.solve_many(sets)  # warm-up: load this batch width's kernels
     solver.solve([sources[0]])
     batch = solver.solve_many(sets)
+    from warp_regdist.solvers import solver as solver_module
+    blocks, solver_module._CPU_BLOCKS = solver_module._CPU_BLOCKS, len(sets)   # A/B: every lane block at once
+    solver.solve_many(sets)
+    all_blocks = solver.solve_many(sets)
+    solver_module._CPU_BLOCKS = blocks
     first = parallel_solver.solve_many(sets)  # includes starting the worker processes
     parallel = parallel_solver.solve_many(sets)
     parallel_solver.close()
@@ -109,7 +115,8 @@ def run_batch(k):
     single_s = sum(r.seconds for r in singles)
     diff = max(np.abs(batch.distance[:, j] - singles[j].distance).max() for j in range(k)) / batch.distance.max()
     return {"case": f"batch_{k}", "vertices": mesh.n_vertices, "faces": mesh.n_elements, "sources": k,
-            "batched_1_process_s": batch.seconds, "processes": parallel_solver.workers,
+            "batched_1_process_s": batch.seconds, "all_blocks_at_once_s": all_blocks.seconds,
+            "processes": parallel_solver.workers,
             "batched_processes_s": parallel.seconds, "batched_processes_with_start_s": first.seconds,
             "singles_s": single_s, "speedup_1_process": single_s / batch.seconds,
             "speedup_processes": single_s / parallel.seconds,
@@ -122,6 +129,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--large", action="store_true", help="include the 1M-vertex sphere")
     ap.add_argument("--quick", action="store_true", help="spot and pipe only, 8-source batch")
+    ap.add_argument("--batch", action="store_true", help="only the 64-source batch, to results/batch.csv")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--out", default=os.path.join(HERE, "results"))
     args = ap.parse_args()
@@ -136,13 +144,15 @@ def main():
     if args.large:
         names += ["icosphere_655k", "sphere_1M"]
     names.append("batch_8" if args.quick else "batch_64")
+    if args.batch:
+        names = ["batch_64"]
     rows = []
     for name in names:
         print(f"running {name} ...", file=sys.stderr, flush=True)
         row = run_child(__file__, name)
         if row is not None:
             rows.append(row)
-    path = os.path.join(args.out, "single_source.csv")
+    path = os.path.join(args.out, "batch.csv" if args.batch else "single_source.csv")
     write_csv(rows, path)
     for group in ([r for r in rows if not r["case"].startswith("batch")], [r for r in rows if r["case"].startswith("batch")]):
         if group:
