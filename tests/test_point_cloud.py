@@ -74,6 +74,8 @@ def test_cloud_is_refused_where_faces_are_needed():
         wrd.surface_points(cloud, [[1, 0, 0]])
     with pytest.raises(ValueError, match=r"expected a triangle mesh for points of column 0, got a PointCloud"):
         wrd.DistanceSolver(cloud).solve(points=[(0, (1, 0, 0))])
+    with pytest.raises(ValueError, match=r"expected regularizer 'dirichlet' for a PointCloud .* got 'hessian'"):
+        wrd.DistanceSolver(cloud, 1e-3, regularizer="hessian")
 
 
 def test_cli_reads_point_files(tmp_path, capsys):

@@ -132,6 +132,9 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
     """
     if name not in REGULARIZERS:
         raise ValueError(f"expected regularizer among {list(REGULARIZERS)}, got {name!r}")
+    if name != "dirichlet" and mesh.element_weights is not None:
+        raise ValueError(f"expected regularizer 'dirichlet' for a PointCloud (its local triangles overlap: no "
+                         f"face-wise field or curved Hessian), got {name!r}")
     if name != "vector_field" and (beta_hat is not None or vector_field is not None):
         given = "beta_hat" if beta_hat is not None else "vector_field"
         raise ValueError(f"expected {given} only with regularizer 'vector_field', got it with {name!r}")
