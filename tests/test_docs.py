@@ -111,6 +111,9 @@ def test_show_surface_tets_and_several_fields(polyscope):
     tets = wrd.Mesh(box, [[0, 3, 1, 7], [0, 2, 3, 7], [0, 6, 2, 7], [0, 4, 6, 7], [0, 5, 4, 7], [0, 1, 5, 7]])
     wrd.show(tets, np.arange(8.0), backend="openGL_mock", frames=1)
     assert polyscope.has_volume_mesh("distance")
+    cloud = wrd.PointCloud(s.vertices)
+    wrd.show(cloud, wrd.DistanceSolver(cloud).solve([0]).distance, backend="openGL_mock", frames=1)
+    assert polyscope.has_point_cloud("distance") and not polyscope.has_surface_mesh("distance")
 
 
 def test_show_bad_input(polyscope):

@@ -15,7 +15,8 @@ __all__ = ["show"]
 def show(mesh, u, isolines=20, sources=None, names=None, backend=None, frames=None):
     """Show one or several per-vertex fields on ``mesh`` in a polyscope window.
 
-    Tetrahedral meshes get a scene slice plane (drag it in the window) to see inside.
+    Tetrahedral meshes get a scene slice plane (drag it in the window) to see inside; a
+    :class:`~warp_regdist.PointCloud` is shown as its points (colours, no isolines).
 
     Parameters
     ----------
@@ -58,7 +59,10 @@ def show(mesh, u, isolines=20, sources=None, names=None, backend=None, frames=No
     width = float(np.ptp(V[:, 0])) * 1.15 or 1.0
     for i, (name, values) in enumerate(fields.items()):
         offset = np.array([i * width, 0.0, 0.0])
-        if mesh.element_dim == 3:
+        cloud = mesh.element_weights is not None
+        if cloud:                                  # a PointCloud: its points, not its overlapping local triangles
+            structure = ps.register_point_cloud(name, V + offset)
+        elif mesh.element_dim == 3:
             structure = ps.register_volume_mesh(name, V + offset, tets=np.asarray(mesh.elements))
         else:
             structure = ps.register_surface_mesh(name, V + offset, np.asarray(mesh.elements))
@@ -66,7 +70,7 @@ def show(mesh, u, isolines=20, sources=None, names=None, backend=None, frames=No
         top = float(finite.max()) if finite.size else 1.0
         shown = np.where(np.isfinite(values), values, top)
         options = dict(enabled=True, cmap="viridis")
-        if isolines and top > 0:
+        if isolines and top > 0 and not cloud:
             options.update(isolines_enabled=True, isoline_period=top / isolines, isoline_period_relative=False)
         structure.add_scalar_quantity("distance", shown, **options)
         if src is not None and src.size:
