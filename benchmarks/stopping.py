@@ -8,7 +8,8 @@ Measurement set: quadric-decimated cat_rr, spot_rr and spot_rr_holes (fast-simpl
 the decimator trimesh's ``simplify_quadric_decimation`` uses: obtuse and sliver triangles,
 a boundary for the holes), a bumpy icosphere (vertices moved along their normals by up to
 0.15 of the radius), an ellipsoid 1 x 1 x 2.5 (half of its triangles obtuse); single
-sources also on the full spot_rr, bent_pipe_closed_lr and cat_rr. The exact minimizer of
+sources also on the full spot_rr, bent_pipe_closed_lr and cat_rr, and on a tetrahedral
+ball and cube (a vertex and the boundary as sources). The exact minimizer of
 each discrete problem (all pairs also on decimations to 60-80 vertices) is solved by cvxpy + Clarabel (tests/reference_solver.py,
 tests/all_pairs_reference.py) and cached in --cache. Each case runs at the package's
 defaults and, in the same process, at the previous defaults (``PREVIOUS``), one thread.
@@ -89,11 +90,22 @@ def error_pct(u, exact):
     return float(100 * np.abs(u - exact).max() / exact.max())
 
 
+def tet_set():
+    """(name, mesh) of two small tetrahedral meshes: a ball (127 vertices) and a cube (216)."""
+    spec = importlib.util.spec_from_file_location("test_meshes", os.path.join(TESTS, "meshes.py"))
+    test_meshes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(test_meshes)
+    return [("ball tets", wrd.Mesh(*test_meshes.ball_tets(1, 3))), ("cube tets", wrd.Mesh(*test_meshes.cube_tets(5)))]
+
+
 def single_cases():
-    out = [(name, mesh, [0], a) for name, mesh in measurement_set() for a in (0.0, 0.03, 0.1, 0.3)]
+    out = [(name, mesh, [0], a) for name, mesh in measurement_set() for a in (0.0, 0.01, 0.03, 0.1, 0.3)]
     out += [(name, mesh, [5, 77], 0.05) for name, mesh in measurement_set()]
     holes = measurement_set()[2]
     out.append((holes[0], holes[1], wrd.boundary_vertices(holes[1]).tolist(), 0.05))
+    for name, mesh in tet_set():
+        out += [(name, mesh, [0], a) for a in (0.01, 0.05, 0.3)]
+        out.append((name, mesh, wrd.boundary_vertices(mesh).tolist(), 0.05))
     for name, source in (("spot_rr", 2272), ("bent_pipe_closed_lr", 4882), ("cat_rr", 0)):
         mesh = meshes.shared_mesh(name)
         if mesh is not None:
@@ -108,8 +120,9 @@ def run_single(cache):
     for name, mesh, sources, alpha_hat in single_cases():
         label = "boundary" if len(sources) > 2 else ",".join(map(str, sources))
         V, F = mesh.vertices, mesh.elements
+        size = rs.face_geometry(V, F)[0].sum() ** (1.0 / mesh.element_dim)     # sqrt(area), cube root of volume
         exact = cached(cache, f"single {name} {mesh.n_vertices} {label} {alpha_hat}",
-                       lambda: rs.solve_reference(V, F, sources, alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum())))
+                       lambda: rs.solve_reference(V, F, sources, alpha_hat * size))
         solver = wrd.DistanceSolver(mesh, alpha_hat, device="cpu", workers=1)
         row = dict(solver="single", mesh=name, n=mesh.n_vertices, sources=label, alpha_hat=alpha_hat)
         for tag, settings in (("", {}), ("previous_", PREVIOUS["single"])):
