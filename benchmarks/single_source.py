@@ -9,7 +9,9 @@ Prints a markdown table and writes benchmarks/results/single_source.csv. Each ca
 its own process (so peak memory is its own); solve times are medians over repeats after
 one warm-up solve (kernel cache warm). The error column is against the exact minimizer
 of the discrete problem where one is available: the shipped interior-point reference on
-spot, and the scipy baseline run to tight tolerances (eps / 100) elsewhere.
+spot, and the scipy baseline run to tight tolerances (eps / 100) elsewhere. With potpourri3d
+installed (the ``compare`` extra) the heat method's setup and solve times are measured in the
+same process.
 """
 
 import argparse
@@ -80,12 +82,35 @@ def run_case(name, baseline=True):
             tight = scipy_admm.solve_admm(mesh.vertices, mesh.elements, [source], alpha_hat,
                                           eps_abs=1e-9, eps_rel=1e-6, eps_rel_dual=1e-4, max_iter=50000)
             exact = tight["u"]
+    heat = _heat_method(mesh, source, repeats)
+    if heat is not None:
+        row.update(heat_setup_s=heat[0], heat_solve_s=heat[1])
     if exact is not None:
         row["max_error_pct"] = float(100 * np.abs(res.distance - exact).max() / exact.max())
         if baseline:
             row["authors_rule_error_pct"] = float(100 * np.abs(authors["u"] - exact).max() / exact.max())
     row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     return row
+
+
+def _heat_method(mesh, source, repeats):
+    """(setup s, median solve s) of potpourri3d's heat method (t_coef 1) on a triangle mesh, or None
+    without potpourri3d (the ``compare`` extra) or on tetrahedra."""
+    try:
+        import potpourri3d as pp3d
+    except ImportError:
+        return None
+    if mesh.element_dim != 2:
+        return None
+    t = time.perf_counter()
+    solver = pp3d.MeshHeatMethodDistanceSolver(mesh.vertices, mesh.elements)
+    setup = time.perf_counter() - t
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        solver.compute_distance(source)
+        times.append(time.perf_counter() - t)
+    return setup, float(np.median(times))
 
 
 def run_batch(k):
