@@ -83,16 +83,31 @@ def trace_curve(mesh, faces, bary, closed=False):
 
 
 def _walk(V, T, neighbours, normals, start, goal, pa, pb, names):
-    """Edge crossings [(face, bary)] of the plane section from pa (on the faces ``start``) to pb."""
+    """Edge crossings [(face, bary)] of a plane section from pa (on the faces ``start``) to pb: the
+    plane through both that contains their faces' mean normal, or else either point's normal."""
     d = pb - pa
-    nbar = normals[sorted(start)].sum(axis=0) + normals[sorted(goal)].sum(axis=0)
-    m = np.cross(d, nbar)
-    if np.linalg.norm(m) <= 1e-12 * np.linalg.norm(d) * np.linalg.norm(nbar):
+    tiny = 1e-9 * np.linalg.norm(d)
+    upright = False
+    for normal in (normals[sorted(start)].sum(axis=0) + normals[sorted(goal)].sum(axis=0),
+                   normals[sorted(start)].sum(axis=0), normals[sorted(goal)].sum(axis=0)):
+        m = np.cross(d, normal)
+        if np.linalg.norm(m) <= 1e-12 * np.linalg.norm(d) * np.linalg.norm(normal):
+            upright = True
+            continue
+        out = _section(V, T, neighbours, start, goal, pa, d, (V - pa) @ m, tiny)
+        if out is not None:
+            return out
+    if upright:
         raise ValueError(f"expected curve points {names[0]} and {names[1]} not along the surface normal, got "
                          "points one above the other")
-    phi = (V - pa) @ m
+    raise ValueError(f"expected curve points {names[0]} and {names[1]} joined by a section of the surface, got "
+                     "sections that do not reach the next point either way round, or reach the boundary "
+                     "(add points between them)")
+
+
+def _section(V, T, neighbours, start, goal, pa, d, phi, tiny):
+    """The crossings of the section phi = 0 from pa to a face of ``goal``, or None."""
     plus = phi >= 0
-    tiny = 1e-9 * np.linalg.norm(d)
 
     def crossing(f, s):
         a, b = T[f, s], T[f, (s + 1) % 3]
@@ -102,31 +117,37 @@ def _walk(V, T, neighbours, normals, start, goal, pa, pb, names):
         w[s], w[(s + 1) % 3] = 1 - t, t
         return x, w
 
-    best = None
+    candidates = []
     for f in sorted(start):
         for s in range(3):
             if plus[T[f, s]] != plus[T[f, (s + 1) % 3]]:
                 x, w = crossing(f, s)
-                ahead = (x - pa) @ d
-                if np.linalg.norm(x - pa) > tiny and ahead > 0 and (best is None or ahead < best[0]):
-                    best = (ahead, f, s, x, w)
-    if best is None:
-        raise ValueError(f"expected curve points {names[0]} and {names[1]} joined by a section of the surface, got "
-                         "no edge crossing towards the next point")
-    _, f, s, x, w = best
+                if np.linalg.norm(x - pa) > tiny:
+                    ahead = (x - pa) @ d
+                    candidates.append((ahead <= 0, abs(ahead), f, s, w))
+    # towards the next point first; the section is a closed loop on a closed surface, so the
+    # other way round reaches it too when the first way runs into the boundary
+    for *_, f, s, w in sorted(candidates, key=lambda c: c[:2]):
+        out = _follow(T, neighbours, plus, crossing, goal, f, s, w)
+        if out is not None:
+            return out
+    return None
+
+
+def _follow(T, neighbours, plus, crossing, goal, f, s, w):
+    """The crossings from side s of face f on, until a face of ``goal``; None at the boundary or
+    after every face (a loop that misses the goal)."""
     out = []
     for _ in range(len(T)):
         out.append((f, w))
         g = neighbours[f, s]
         if g < 0:
-            raise ValueError(f"expected the curve from point {names[0]} to {names[1]} to stay on the surface, got a "
-                             "section that reaches the boundary (add points between them)")
+            return None
         if g in goal:
             return out
         a, b = T[f, s], T[f, (s + 1) % 3]
         sg = next(r for r in range(3) if T[g, r] == b and T[g, (r + 1) % 3] == a)
         s = next(r for r in ((sg + 1) % 3, (sg + 2) % 3) if plus[T[g, r]] != plus[T[g, (r + 1) % 3]])
         f = g
-        x, w = crossing(f, s)
-    raise ValueError(f"expected curve points {names[0]} and {names[1]} joined by a section of the surface, got a "
-                     "section that does not reach the next point (add points between them)")
+        _, w = crossing(f, s)
+    return None

@@ -181,6 +181,7 @@ def render_distance(
     title: str | None = None,
     view=None,
     cmap: str = "viridis",
+    limits=None,
 ) -> None:
     """Write a PNG of a triangle mesh coloured by a per-vertex field, with isolines.
 
@@ -212,6 +213,8 @@ def render_distance(
         the surface is closed.
     cmap : str
         Matplotlib colour map name.
+    limits : (float, float) or None
+        The values at the colour map's ends; None: the finite values' range.
     """
     vertices, faces = surface_arrays(mesh)
     values = vertex_values(values, len(vertices))
@@ -232,6 +235,8 @@ def render_distance(
 
     finite = np.isfinite(values)
     lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
+    if limits is not None:
+        lo, hi = (float(v) for v in limits)
     norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
     face_values = values[faces].mean(axis=1)
     face_finite = np.isfinite(face_values)
@@ -384,6 +389,8 @@ def render_cut(
     colormap = colormaps[cmap]
     finite = np.isfinite(values)
     lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
+    if limits is not None:
+        lo, hi = (float(v) for v in limits)
     norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
     if np.ndim(levels) == 0:
         levels = _default_levels(values, int(levels))
