@@ -389,8 +389,6 @@ def render_cut(
     colormap = colormaps[cmap]
     finite = np.isfinite(values)
     lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
-    if limits is not None:
-        lo, hi = (float(v) for v in limits)
     norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
     if np.ndim(levels) == 0:
         levels = _default_levels(values, int(levels))
