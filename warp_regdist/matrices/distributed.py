@@ -1,12 +1,14 @@
 """Blocks of distance-matrix rows as tasks on a Dask cluster (``dask.distributed``).
 
-The mesh is scattered once to every worker (``broadcast=True``). Each worker process builds
+The mesh is the result of one task that every block depends on: a worker fetches it once,
+and where the workers holding it die the scheduler runs that task again (scattered data
+would be lost with them, and the blocks that need it cancelled). Each worker process builds
 one :class:`DistanceSolver` (one CPU thread) for the problem on its first task and keeps it
 for the next ones; a task solves one block of sources as one batched ADMM and returns its
 (len(block), n) rows. Warp's CPU launches must not interleave between threads of a process,
 so a worker runs one block at a time whatever its thread count (start workers with one
-thread each and as many processes as cores). The scheduler runs the tasks of a worker that dies again elsewhere
-(a restarted worker fetches the mesh from another one). Needs
+thread each and as many processes as cores). The scheduler runs the tasks of a worker that dies
+again elsewhere. Needs
 ``pip install 'warp-regdist[distributed]'``.
 """
 
@@ -61,7 +63,7 @@ def solve_blocks(client, mesh, problem, blocks):
     if not blocks:
         return
     key = _problem_key(mesh, problem)
-    mesh_future = client.scatter(mesh, broadcast=True)
+    mesh_future = _mesh_task(client, mesh)
     futures = {client.submit(_solve_block, mesh_future, key, problem, sources, pure=False): block
                for block, sources in blocks.items()}
     try:
@@ -72,6 +74,17 @@ def solve_blocks(client, mesh, problem, blocks):
             yield block, rows, messages
     finally:
         client.cancel(list(futures))
+
+
+def _mesh_task(client, mesh):
+    """A future of ``mesh`` computed by a task (recomputed if every worker holding it dies)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Large object")   # the mesh is meant to travel once
+        return client.submit(_same, mesh, pure=False)
+
+
+def _same(value):
+    return value
 
 
 def _block_rows(mesh, key, problem, sources):
@@ -94,7 +107,7 @@ def lazy_matrix(client, mesh, problem, sources, chunk, symmetrize):
     import dask.array as da
 
     key = _problem_key(mesh, problem)
-    mesh_future = client.scatter(mesh, broadcast=True)
+    mesh_future = _mesh_task(client, mesh)
     k, n = len(sources), mesh.n_vertices
     bounds = [(lo, min(k, lo + chunk)) for lo in range(0, k, chunk)]
     blocks = [dask.delayed(_block_rows, pure=True)(mesh_future, key, problem, sources[lo:hi]) for lo, hi in bounds]
