@@ -193,6 +193,7 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     """
     V, T, n = mesh.vertices, mesh.elements, mesh.n_vertices
     snap = tolerances.point_snap
+    incidence = _Incidence(T, n)
     positions = [p for p in V]
     edge_points = {}                              # (lo, hi) -> [[t, vertex], ...]
     face_points = {}                              # face -> [[bary, vertex], ...]
@@ -209,6 +210,7 @@ def refine(mesh, faces, bary, chains=(), feet=None):
         if hit is None:
             hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi])]
             bucket.append(hit)
+            incidence.on_edge[hit[1]] = (lo, hi)
         return hit[1]
 
     def add_feet(x, f):
@@ -236,7 +238,7 @@ def refine(mesh, faces, bary, chains=(), feet=None):
             t = b[(s + 2) % 3] / (b[(s + 1) % 3] + b[(s + 2) % 3])
             vertex_of[i] = edge_vertex(a, c, t)
             if feet[i]:
-                for g in _faces_of_edge(mesh, a, c):
+                for g in incidence.edge(a, c):
                     add_feet(positions[vertex_of[i]], g)
             continue
         bucket = face_points.setdefault(int(f), [])
@@ -256,12 +258,12 @@ def refine(mesh, faces, bary, chains=(), feet=None):
         for i, j in zip(chain[:-1], chain[1:]):
             if vertex_of[i] == vertex_of[j]:
                 continue
-            f = _common_face(mesh, faces[i], faces[j], vertex_of[i], vertex_of[j], edge_points, n)
+            f = _common_face(incidence, faces[i], faces[j], vertex_of[i], vertex_of[j])
             segments.setdefault(f, []).append((vertex_of[i], vertex_of[j]))
 
     touched = set(face_points) | set(segments)
     for lo, hi in edge_points:
-        touched |= set(_faces_of_edge(mesh, lo, hi))
+        touched |= set(incidence.edge(lo, hi))
     keep = np.ones(len(T), dtype=bool)
     new_faces, parent = [], []
     chain_points = {}
@@ -329,21 +331,37 @@ def _lift(xy, P, corners):
     return (1 - w1 - w2) * corners[0] + w1 * corners[1] + w2 * corners[2]
 
 
-def _faces_of_edge(mesh, lo, hi):
-    T = mesh.elements
-    return np.flatnonzero(((T == lo).any(axis=1)) & ((T == hi).any(axis=1))).tolist()
+class _Incidence:
+    """The faces at an edge and at a vertex of triangles T (m, 3), by binary search."""
+
+    def __init__(self, T, n):
+        self.n, self.m = n, len(T)
+        a, b = T.T.ravel(), T[:, [1, 2, 0]].T.ravel()          # side s of every face, s = 0, 1, 2
+        key = np.minimum(a, b) * n + np.maximum(a, b)
+        self.edge_order = np.argsort(key, kind="stable")
+        self.edge_keys = key[self.edge_order]
+        flat = T.ravel()
+        self.vertex_order = np.argsort(flat, kind="stable")
+        self.vertex_starts = np.searchsorted(flat[self.vertex_order], np.arange(n + 1))
+        self.on_edge = {}                                       # new vertex -> its original edge
+
+    def edge(self, a, b):
+        k = min(a, b) * self.n + max(a, b)
+        lo, hi = np.searchsorted(self.edge_keys, k, "left"), np.searchsorted(self.edge_keys, k, "right")
+        return (self.edge_order[lo:hi] % self.m).tolist()
+
+    def vertex(self, v):
+        return (self.vertex_order[self.vertex_starts[v]:self.vertex_starts[v + 1]] // 3).tolist()
 
 
-def _common_face(mesh, fa, fb, va, vb, edge_points, n):
+def _common_face(incidence, fa, fb, va, vb):
     """A face whose closure holds both points (given by their faces and refined vertices)."""
-    T = mesh.elements
 
     def faces_of(f, v):
-        if v < n:
-            return set(np.flatnonzero((T == v).any(axis=1)).tolist())
-        for (lo, hi), bucket in edge_points.items():
-            if any(e[1] == v for e in bucket):
-                return set(_faces_of_edge(mesh, lo, hi))
+        if v < incidence.n:
+            return set(incidence.vertex(v))
+        if v in incidence.on_edge:
+            return set(incidence.edge(*incidence.on_edge[v]))
         return {int(f)}
 
     common = faces_of(fa, va) & faces_of(fb, vb)
