@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import trimesh
 from scipy.spatial import cKDTree
 
 from ..errors import MeshError
@@ -29,6 +30,9 @@ from .face_triangulation import FaceTriangulation
 from .mesh import Mesh, boundary_surface
 
 __all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
+
+_CHUNK = 4096
+"""xyz points whose candidate faces :func:`surface_points` gathers at once."""
 
 _FOOT_MARGIN = 0.05
 """A source point's perpendicular feet on its face's sides are inserted where they fall at least
@@ -101,55 +105,28 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
     used = np.unique(F)
     d0, _ = cKDTree(V[used]).query(X)
     centroid = V[F].mean(axis=1)
-    radius = np.linalg.norm(V[F] - centroid[:, None], axis=2).max(axis=1)
+    reach = d0 + np.linalg.norm(V[F] - centroid[:, None], axis=2).max() + 1e-12
     tree = cKDTree(centroid)
     faces = np.empty(len(X), dtype=np.int64)
-    bary = np.empty((len(X), 3))
     dist = np.empty(len(X))
-    for i, x in enumerate(X):
-        cand = np.asarray(tree.query_ball_point(x, d0[i] + radius.max() + 1e-12), dtype=np.int64)
-        q, b = _closest_on_triangles(x, V[F[cand]])
-        d = np.linalg.norm(q - x, axis=1)
-        j = int(np.argmin(d))
-        faces[i], bary[i], dist[i] = cand[j], b[j], d[j]
+    closest = np.empty((len(X), 3))
+    for lo in range(0, len(X), _CHUNK):                     # (point, candidate face) pairs, a chunk at a time
+        near = tree.query_ball_point(X[lo:lo + _CHUNK], reach[lo:lo + _CHUNK])
+        point = np.repeat(np.arange(lo, lo + len(near)), [len(c) for c in near])
+        face = np.concatenate([np.asarray(c, dtype=np.int64) for c in near])
+        q = trimesh.triangles.closest_point(V[F[face]], X[point])
+        d = np.linalg.norm(q - X[point], axis=1)
+        best = np.lexsort((d, point))                       # by point, nearest first
+        first = best[np.r_[0, np.flatnonzero(np.diff(point[best])) + 1]]
+        faces[lo:lo + len(near)], dist[lo:lo + len(near)], closest[lo:lo + len(near)] = face[first], d[first], q[first]
+    bary = np.clip(trimesh.triangles.points_to_barycentric(V[F[faces]], closest), 0.0, None)
+    bary /= bary.sum(axis=1, keepdims=True)
     far = np.flatnonzero(dist > max_distance)
     if far.size:
         raise ValueError(f"expected points within {max_distance:.6g} of the surface (max_distance), got point {far[0]} "
                          f"at distance {dist[far[0]]:.6g} ({far.size} such)")
     out = [(int(f), tuple(float(c) for c in b)) for f, b in zip(faces, bary)]
     return (out, dist) if return_distance else out
-
-
-def _closest_on_triangles(x, tri):
-    """Closest points to x on triangles tri (k, 3, 3): points (k, 3) and barycentrics (k, 3)
-    (Ericson, Real-Time Collision Detection, 5.1.5)."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    ab, ac, ap = b - a, c - a, x - a
-    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
-    bp, cp = x - b, x - c
-    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
-    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    k = len(tri)
-    B = np.empty((k, 3))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        B[:] = np.stack([1 - (vb + vc) / denom, vb / denom, vc / denom], axis=1)      # interior
-        cases = [
-            (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),                                  # on side bc
-            (vb <= 0) & (d2 >= 0) & (d6 <= 0),                                             # on side ac
-            (vc <= 0) & (d1 >= 0) & (d3 <= 0),                                             # on side ab
-        ]
-        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        w_ac, w_ab = d2 / (d2 - d6), d1 / (d1 - d3)
-        for mask, value in zip(cases, (np.stack([0 * w_bc, 1 - w_bc, w_bc], 1), np.stack([1 - w_ac, 0 * w_ac, w_ac], 1),
-                                       np.stack([1 - w_ab, w_ab, 0 * w_ab], 1))):
-            B[mask] = value[mask]
-        for mask, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
-            B[mask] = np.eye(3)[corner]
-    B = np.clip(np.nan_to_num(B), 0.0, 1.0)
-    B /= B.sum(axis=1, keepdims=True)
-    return np.einsum("ki,kij->kj", B, tri), B
 
 
 @dataclasses.dataclass(frozen=True)
