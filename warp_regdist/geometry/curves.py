@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..tolerances import tolerances
+from .surface_points import Incidence, snapped
 
 __all__ = ["trace_curve", "face_neighbours"]
 
@@ -33,15 +34,14 @@ def face_neighbours(faces):
     return out.reshape(m, 3)
 
 
-def _touching(faces_of_vertex, T, neighbours, f, b):
-    """The faces whose closure holds the surface point (f, b) (after snapping as refine does)."""
-    snap = tolerances.point_snap
-    k = int(np.argmax(b))
-    if b[k] >= 1.0 - snap:
-        return set(faces_of_vertex(T[f, k]))
-    s = int(np.argmin(b))
-    if b[s] <= snap:
-        g = neighbours[f, (s + 1) % 3]                 # the side opposite corner s: corners s + 1, s + 2
+def _touching(incidence, T, neighbours, f, b):
+    """The faces whose closure holds the surface point (f, b), snapped by ``tolerances.point_snap``: the
+    faces a walk may start from (refine may move a curve's point further, onto a corner of them)."""
+    kind, k = snapped(b, tolerances.point_snap)
+    if kind == "vertex":
+        return set(incidence.vertex(T[f, k]))
+    if kind == "side":
+        g = neighbours[f, (k + 1) % 3]                 # the side opposite corner k: corners k + 1, k + 2
         return {int(f)} | ({int(g)} if g >= 0 else set())
     return {int(f)}
 
@@ -56,11 +56,7 @@ def trace_curve(mesh, faces, bary, closed=False):
         raise ValueError(f"expected a curve of at least 2 points, got {len(faces)}")
     V, T = mesh.vertices, mesh.elements
     neighbours = face_neighbours(T)
-    order = np.argsort(T.ravel(), kind="stable")
-    starts = np.searchsorted(T.ravel()[order], np.arange(mesh.n_vertices + 1))
-
-    def faces_of_vertex(v):
-        return (order[starts[v]:starts[v + 1]] // 3).tolist()
+    incidence = Incidence(T, mesh.n_vertices)
 
     normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
@@ -71,8 +67,8 @@ def trace_curve(mesh, faces, bary, closed=False):
         pairs.append((len(faces) - 1, 0))
     for ia, ib in pairs:
         pa, pb = bary[ia] @ V[T[faces[ia]]], bary[ib] @ V[T[faces[ib]]]
-        start = _touching(faces_of_vertex, T, neighbours, faces[ia], bary[ia])
-        goal = _touching(faces_of_vertex, T, neighbours, faces[ib], bary[ib])
+        start = _touching(incidence, T, neighbours, faces[ia], bary[ia])
+        goal = _touching(incidence, T, neighbours, faces[ib], bary[ib])
         if not start & goal:
             for f, b in _walk(V, T, neighbours, normals, start, goal, pa, pb, (ia, ib)):
                 out_f.append(f)

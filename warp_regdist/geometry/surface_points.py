@@ -29,7 +29,7 @@ from ..tolerances import tolerances
 from .face_triangulation import FaceTriangulation
 from .mesh import Mesh, boundary_surface
 
-__all__ = ["surface_points", "check_surface_points", "refine", "Refinement"]
+__all__ = ["surface_points", "check_surface_points", "refine", "Refinement", "Incidence", "snapped"]
 
 _CHUNK = 4096
 """xyz points whose candidate faces :func:`surface_points` gathers at once."""
@@ -129,6 +129,19 @@ def surface_points(mesh, xyz, return_distance=False, max_distance=None):
     return (out, dist) if return_distance else out
 
 
+def snapped(b, vertex_snap):
+    """Where the point of barycentric coordinates b lies once snapped: ("vertex", k) when
+    b_k >= 1 - vertex_snap is its largest, ("side", k) (the side opposite corner k) when
+    b_k <= ``tolerances.point_snap`` is its smallest, else ("face", None)."""
+    k = int(np.argmax(b))
+    if b[k] >= 1.0 - vertex_snap:
+        return "vertex", k
+    k = int(np.argmin(b))
+    if b[k] <= tolerances.point_snap:
+        return "side", k
+    return "face", None
+
+
 @dataclasses.dataclass(frozen=True)
 class Refinement:
     """A mesh refined at surface points (see :func:`refine`).
@@ -170,7 +183,7 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     """
     V, T, n = mesh.vertices, mesh.elements, mesh.n_vertices
     snap = tolerances.point_snap
-    incidence = _Incidence(T, n)
+    incidence = Incidence(T, n)
     positions = [p for p in V]
     edge_points = {}                              # (lo, hi) -> [[t, vertex], ...]
     face_points = {}                              # face -> [[bary, vertex], ...]
@@ -205,14 +218,13 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     vertex_of = np.empty(len(faces), dtype=np.int64)
     for i, (f, b) in enumerate(zip(faces, bary)):
         corners = T[f]
-        k = int(np.argmax(b))
-        if b[k] >= 1.0 - (tolerances.curve_snap if i in on_curves else snap):
+        kind, k = snapped(b, tolerances.curve_snap if i in on_curves else snap)
+        if kind == "vertex":
             vertex_of[i] = corners[k]
             continue
-        s = int(np.argmin(b))
-        if b[s] <= snap:
-            a, c = corners[(s + 1) % 3], corners[(s + 2) % 3]
-            t = b[(s + 2) % 3] / (b[(s + 1) % 3] + b[(s + 2) % 3])
+        if kind == "side":
+            a, c = corners[(k + 1) % 3], corners[(k + 2) % 3]
+            t = b[(k + 2) % 3] / (b[(k + 1) % 3] + b[(k + 2) % 3])
             vertex_of[i] = edge_vertex(a, c, t)
             if feet[i]:
                 for g in incidence.edge(a, c):
@@ -308,7 +320,7 @@ def _lift(xy, P, corners):
     return (1 - w1 - w2) * corners[0] + w1 * corners[1] + w2 * corners[2]
 
 
-class _Incidence:
+class Incidence:
     """The faces at an edge and at a vertex of triangles T (m, 3), by binary search."""
 
     def __init__(self, T, n):
