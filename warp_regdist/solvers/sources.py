@@ -69,16 +69,12 @@ class SurfaceSources:
         """(n',) +1 / -1 on the two sides of column j's closed curves (-1 on the left of their
         direction, seen from the side the face normals point to), 0 on them."""
         mesh = self.refinement.mesh
-        F = mesh.elements
-        cut = set()
-        for chain in self.curves[j]:
-            cut |= {(int(a), int(b)) for a, b in zip(chain[:-1], chain[1:])}
-        a, b = F.ravel(), F[:, [1, 2, 0]].ravel()
+        F, n = mesh.elements, mesh.n_vertices
+        cut = np.concatenate([chain[:-1] * n + chain[1:] for chain in self.curves[j]])   # the curves' directed edges
+        a, b = F.ravel(), F[:, [1, 2, 0]].ravel()              # every face's sides, in its orientation
         face = np.repeat(np.arange(len(F)), 3)
-        left = np.array([(x, y) in cut for x, y in zip(a.tolist(), b.tolist())])
-        right = np.array([(y, x) in cut for x, y in zip(a.tolist(), b.tolist())])
+        left, right = np.isin(a * n + b, cut), np.isin(b * n + a, cut)
         # faces joined across every edge that is not on a curve
-        n = mesh.n_vertices
         key = np.minimum(a, b) * n + np.maximum(a, b)
         on_curve = np.isin(key, key[left | right])
         order = np.argsort(key)
