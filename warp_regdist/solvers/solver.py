@@ -310,7 +310,7 @@ class DistanceSolver:
         if self._pool is not None:
             self._pool.close()
             self._pool = None
-        if getattr(self, "_refined", None) is not None:
+        if self._refined is not None:
             self._refined[1].close()
 
     def __enter__(self):
