@@ -8,12 +8,13 @@ an independent conic solve of the refined problem (tests/reference_solver.py).
 import numpy as np
 import pytest
 
+import conftest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from warp_regdist.geometry.surface_points import refine
 
-TIGHT = dict(eps_abs=1e-7, eps_rel=1e-5, eps_rel_dual=1e-3, eps_change=1e-6)
+TIGHT = dict(conftest.TIGHT, eps_change=1e-6)
 
 
 def _sphere(subdivisions):
