@@ -7,6 +7,7 @@ a dense numpy transcription of the full ADMM of docs/method.md section 5 (all ni
 claim that the symmetric half-state ADMM reproduces it iterate by iteration.
 """
 
+import math
 import os
 import warnings
 
@@ -197,10 +198,34 @@ def test_cli_allpairs(tmp_path, capsys):
     assert main(["allpairs", str(path), "--alpha-hat", "0.03", "--output", str(out), "--device", "cpu"]) == 0
     U = np.load(out)
     assert np.abs(U - d["U_003"]).max() <= 0.01 * d["U_003"].max()
-    err = capsys.readouterr().err
-    assert "iteration" in err and "r1" in err
+    captured = capsys.readouterr()
+    assert "iteration" in captured.err and "r1" in captured.err and "estimated error" in captured.out
+    assert main(["allpairs", str(path), "--alpha-hat", "0.03", "--output", str(out), "--accuracy", "0.002",
+                 "--quiet"]) == 0
+    assert np.abs(np.load(out) - d["U_003"]).max() <= 0.002 * d["U_003"].max()
+    assert main(["allpairs", str(path), "--output", str(out), "--accuracy", "0.5"]) == 2
+    assert "expected accuracy as a fraction of the max distance in (0, 0.1], got 0.5" in capsys.readouterr().err
     assert main(["allpairs", str(tmp_path / "missing.off"), "--output", str(out)]) == 2
     assert capsys.readouterr().err.startswith("warp-regdist: error:")
+
+
+def test_solver_object_solves_again_as_all_pairs_does(bumpy42):
+    mesh, _ = bumpy42
+    once = wrd.all_pairs(mesh, 0.1, workers=1, accuracy=0.02)
+    solver = wrd.AllPairsSolver(mesh, 0.1, workers=1)
+    assert solver.memory_bytes == once.memory_bytes
+    for _ in range(2):  # the second solve starts from zeros again
+        again = solver.solve(accuracy=0.02)
+        assert again.iterations == once.iterations and np.array_equal(again.distance, once.distance)
+    residuals_only = solver.solve(accuracy=0.02, eps_change=math.inf)  # an explicit tolerance overrides accuracy's
+    assert residuals_only.iterations < once.iterations and residuals_only.error_estimate == residuals_only.change
+
+
+@pytest.mark.parametrize("accuracy", [0.0, -0.01, 0.2, math.nan, "0.01", True])
+def test_accuracy_outside_its_range_is_refused(bumpy42, accuracy):
+    mesh, _ = bumpy42
+    with pytest.raises(ValueError, match=r"expected accuracy as a fraction of the max distance in \(0, 0\.1\], got"):
+        wrd.AllPairsSolver(mesh, 0.1).solve(accuracy=accuracy)
 
 
 def test_warm_start_from_another_alpha_hat_reaches_the_new_minimizer(bumpy42, tmp_path):

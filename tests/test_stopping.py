@@ -39,6 +39,26 @@ def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
     assert _error(res.distance, refs[alpha_hat]) <= 5e-3
 
 
+@pytest.mark.parametrize("accuracy", [0.01, 0.002])
+@pytest.mark.parametrize("alpha_hat", [0.03, 0.1])
+def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
+    mesh, refs = cat80
+    res = wrd.AllPairsSolver(mesh, alpha_hat, workers=1).solve(accuracy=accuracy)
+    assert res.converged and res.error_estimate <= 0.6 * accuracy
+    assert _error(res.distance, refs[alpha_hat]) <= accuracy
+
+
+def test_accuracy_scales_every_relative_tolerance():
+    from warp_regdist.solvers.all_pairs_admm import accuracy_tolerances
+
+    tol = wrd.tolerances
+    assert accuracy_tolerances(None) == dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
+                                             eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change)
+    fine = accuracy_tolerances(0.001)
+    assert fine["eps_change"] == pytest.approx(tol.pairs_eps_change / 5)
+    assert fine["eps_rel_consensus"] == pytest.approx(tol.pairs_eps_rel_consensus / 5)
+
+
 def test_all_pairs_reads_its_settings_from_tolerances(cat80):
     mesh, _ = cat80
     with wrd.tolerances.override(pairs_eps_change=0.0):

@@ -6,7 +6,7 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 
 from . import _moved, metrics
 from .solvers.admm import PenaltySchedule
-from .solvers.all_pairs_admm import all_pairs
+from .solvers.all_pairs_admm import AllPairsSolver, all_pairs
 from .output.export import save_vtu
 from .geometry.line_field import line_field
 from .errors import ConvergenceWarning, MeshError, WorkerError
@@ -29,5 +29,5 @@ _moved.install()
 
 __all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
-           "all_pairs", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
+           "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "show", "__version__"]

@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
         metavar="A",
         help="scale-invariant regularization weight >= 0; alpha = A sqrt(area) (default: 0.03)",
     )
+    allpairs.add_argument("--accuracy", type=float, default=None, metavar="E",
+                          help="the max error accepted, as a fraction of the max distance, in (0, 0.1]: the stopping "
+                          "tolerances follow from it (default: the tolerances' settings, which stop within 0.005)")
     allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
     allpairs.add_argument(
         "--checkpoint",
@@ -81,7 +84,7 @@ def run(args: argparse.Namespace) -> None:
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
                            progress=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
                            workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
-                           resume=args.resume, initial=args.initial)
+                           resume=args.resume, initial=args.initial, accuracy=args.accuracy)
     saved = f"; the solver state is in {args.checkpoint} (continue with --resume {args.checkpoint})" \
         if args.checkpoint is not None else ""
     if result.interrupted:
@@ -94,4 +97,5 @@ def run(args: argparse.Namespace) -> None:
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "
               f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
-              f"{result.memory_bytes / 1e9:.2f} GB. Largest distance {result.distance.max():.4g}. Wrote {args.output}.")
+              f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} of the largest distance "
+              f"{result.distance.max():.4g}. Wrote {args.output}.")

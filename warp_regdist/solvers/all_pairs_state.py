@@ -19,7 +19,7 @@ from .multigrid import smoothed_aggregation
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 
-__all__ = ["PairsSettings", "SymmetricADMM", "STATE_ROWS", "memory_estimate", "check_memory", "available_memory"]
+__all__ = ["PairsSettings", "SymmetricADMM", "middle_matrix", "STATE_ROWS", "memory_estimate", "check_memory", "available_memory"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +79,12 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
     return device_bytes, host_bytes
 
 
+def middle_matrix(ops, rho2_factor, penalty_mid):
+    """K2 / (alpha + rho) = W_D + (rho2_factor penalty_mid / A) M_V: the X-step matrix (within a factor)
+    at the penalty ``penalty_mid`` (units of L), whose multigrid hierarchy preconditions every X-step."""
+    return (ops.stiffness + (rho2_factor * penalty_mid / ops.total_volume) * sp.diags(ops.vertex_volumes)).tocsr()
+
+
 def _even_splits(weights, parts):
     """Bounds b_0 = 0 <= ... <= b_parts = len(weights) cutting ``weights`` into ``parts`` runs of
     about equal sums (a run may be empty when single items outweigh a share)."""
@@ -88,9 +94,10 @@ def _even_splits(weights, parts):
 
 
 class _Setup:
-    """Host data that every part of the iteration needs (pickled to the worker processes)."""
+    """Host data that every part of the iteration needs (pickled to the worker processes); ``hierarchy``:
+    the multigrid hierarchy of ``K_mid`` when the caller has it (built here otherwise)."""
 
-    def __init__(self, mesh, ops, alpha_hat, dtype, settings, parts):
+    def __init__(self, mesh, ops, alpha_hat, dtype, settings, parts, hierarchy=None):
         self.n, self.m = mesh.n_vertices, mesh.n_elements
         self.dtype = dtype
         self.elements = mesh.elements.astype(np.int32)
@@ -105,8 +112,8 @@ class _Setup:
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
         # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
-        self.K_mid = self.matrix(1.0, settings.rho2_factor * settings.penalty_mid / self.A)
-        self.hierarchy = smoothed_aggregation(self.K_mid)
+        self.K_mid = middle_matrix(ops, settings.rho2_factor, settings.penalty_mid)
+        self.hierarchy = smoothed_aggregation(self.K_mid) if hierarchy is None else hierarchy
         self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
         self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
 
@@ -208,13 +215,13 @@ class SymmetricADMM:
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
-    def __init__(self, mesh, ops, alpha_hat, device, dtype, settings, workers, auto_workers=False):
+    def __init__(self, mesh, ops, alpha_hat, device, dtype, settings, workers, auto_workers=False, hierarchy=None):
         n = mesh.n_vertices
         nb = -(-n // lane_width(SCALARS[dtype], n))
         parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
         if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
             parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(mesh, ops, alpha_hat, dtype, settings, parts)
+        self.setup = setup = _Setup(mesh, ops, alpha_hat, dtype, settings, parts, hierarchy)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:n] = setup.vertex_volumes
