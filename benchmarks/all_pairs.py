@@ -4,6 +4,7 @@
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline
     python benchmarks/all_pairs.py --reference-scale 0.2   # also a run at tolerances x 0.2 (slow)
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 process vs all cores
+    python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping   # accuracy= against exact minimizers
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -15,6 +16,12 @@ closest to the all-pairs rows), with its distance to the all-pairs matrix. With
 (a tighter solve of the same problem) and the default runs' max deviation from it is
 reported in % of the maximal distance. The kernel cache is warmed on a small mesh first,
 so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
+
+With ``--accuracy``: ``AllPairsSolver.solve(accuracy=e)`` for e in 0.02, 0.01, 0.005, 0.002 on the
+irregular meshes whose exact minimizers are known (the two in tests/data, and those of
+benchmarks/stopping.py's all-pairs set found in ``--cache``): iterations, time, time per iteration,
+error and the result's error_estimate in % of the max distance, one process. Writes
+benchmarks/results/all_pairs_accuracy.csv.
 """
 
 import argparse
@@ -37,6 +44,8 @@ from report import write_csv  # noqa: E402
 from warp_regdist.metrics import symmetry_error, triangle_inequality_violations  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs.csv")
+ACCURACY_RESULTS = os.path.join(HERE, "results", "all_pairs_accuracy.csv")
+ACCURACIES = (0.02, 0.01, 0.005, 0.002)
 DEFAULTS = dict(eps_rel=5e-4, eps_rel_consensus=5e-5, eps_rel_dual=1e-2)  # all_pairs' defaults
 
 
@@ -49,6 +58,42 @@ def quality(D, area):
                 violations=float(triangle_inequality_violations(D, samples=2_000_000, seed=0)))
 
 
+def exact_cases(cache):
+    """(name, mesh, alpha_hat, exact minimizer) of the stored references and of the cached ones."""
+    tests = os.path.join(HERE, "..", "tests", "data")
+    cases = []
+    for file, name in (("all_pairs_bumpy42.npz", "bumpy icosphere"), ("stopping_cat80.npz", "cat_rr decimated")):
+        d = np.load(os.path.join(tests, file))
+        mesh = wrd.Mesh(d["vertices"], d["faces"].astype(np.int64))
+        cases += [(name, mesh, 0.03, d["U_003"]), (name, mesh, 0.1, d["U_01"])]
+    if cache is not None:
+        import stopping
+
+        for alpha_hat in (0.03, 0.1):
+            for name, mesh in stopping.pairs_set():
+                exact = stopping.cached(cache, f"pairs {name} {mesh.n_vertices} {alpha_hat}", None)
+                if exact is not None and mesh.n_vertices != 80:
+                    cases.append((name, mesh, alpha_hat, exact))
+    return cases
+
+
+def accuracy_rows(cache):
+    rows = []
+    for name, mesh, alpha_hat, exact in exact_cases(cache):
+        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1)
+        for accuracy in ACCURACIES:
+            res = solver.solve(accuracy=accuracy)
+            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs", accuracy=accuracy,
+                       iterations=res.iterations, seconds=round(res.seconds, 3),
+                       ms_per_iteration=round(1e3 * res.seconds / res.iterations, 3),
+                       error_pct=round(100 * float(np.abs(res.distance - exact).max() / exact.max()), 3),
+                       estimate_pct=round(100 * res.error_estimate, 3), converged=res.converged,
+                       peak_rss_gb=round(peak_rss_gb(), 2))
+            rows.append(row)
+            print(row, flush=True)
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", default="cat_rr")
@@ -59,9 +104,16 @@ def main():
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--workers", type=int, nargs="+", default=[0],
                         help="CPU processes of each all_pairs run (0: all cores; several values: one run each)")
+    parser.add_argument("--accuracy", action="store_true", help="accuracy= against exact minimizers of small meshes")
+    parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+    if args.accuracy:
+        sys.path.append(os.path.join(HERE, "..", "tests"))  # stopping.py's references (after benchmarks/)
+        write_csv(accuracy_rows(args.cache), ACCURACY_RESULTS)
+        print(f"wrote {ACCURACY_RESULTS}")
+        return 0
     mesh = meshes.shared_mesh(args.mesh)
     if mesh is None:
         sys.exit(f"expected ../shared/meshes/{args.mesh}.off beside the checkout, got none")
