@@ -44,19 +44,22 @@ def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
 def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
     mesh, refs = cat80
     res = wrd.AllPairsSolver(mesh, alpha_hat, workers=1).solve(accuracy=accuracy)
-    assert res.converged and res.error_estimate <= 0.6 * accuracy
+    assert res.converged and res.error_estimate <= 0.3 * accuracy
     assert _error(res.distance, refs[alpha_hat]) <= accuracy
 
 
-def test_accuracy_scales_every_relative_tolerance():
+def test_accuracy_sets_every_tolerance():
     from warp_regdist.solvers.all_pairs_admm import accuracy_tolerances
 
     tol = wrd.tolerances
     assert accuracy_tolerances(None) == dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
-                                             eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change)
-    fine = accuracy_tolerances(0.001)
-    assert fine["eps_change"] == pytest.approx(tol.pairs_eps_change / 5)
+                                             eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change,
+                                             cg_fraction=tol.cg_fraction)
+    fine, coarse = accuracy_tolerances(0.001), accuracy_tolerances(0.02)
+    assert fine["eps_change"] == pytest.approx(3e-4) and coarse["eps_change"] == pytest.approx(6e-3)
     assert fine["eps_rel_consensus"] == pytest.approx(tol.pairs_eps_rel_consensus / 5)
+    assert coarse["eps_rel_dual"] == pytest.approx(4 * tol.pairs_eps_rel_dual)
+    assert fine["cg_fraction"] == pytest.approx(tol.cg_fraction / 5) and coarse["cg_fraction"] == tol.cg_fraction
 
 
 def test_all_pairs_reads_its_settings_from_tolerances(cat80):
