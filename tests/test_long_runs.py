@@ -98,6 +98,34 @@ def test_resumed_run_equals_uninterrupted(sphere642, tmp_path):
     assert rest.cg_iterations == whole.cg_iterations
 
 
+@pytest.mark.parametrize("path", ["", 3])
+def test_checkpoint_that_is_no_file_name_is_refused_before_the_run(sphere642, path):
+    with pytest.raises(ValueError, match=r"expected checkpoint as a file name \(str or os.PathLike\), got (''|3)"):
+        wrd.all_pairs(sphere642, 0.03, max_iterations=2, checkpoint=path)
+
+
+def test_checkpoints_and_change_tests_read_the_state_without_copying_it(sphere642, tmp_path, monkeypatch):
+    # a copy of the whole state at every checkpoint would hold 1.5x the solver's memory for a moment
+    from warp_regdist.solvers import stopping
+
+    written, compared = [], []
+    savez, update = np.savez, stopping.ExtrapolatedChangeTest.update
+
+    def recording_savez(file, **arrays):
+        written.append({name: not a.flags.owndata for name, a in arrays.items() if a.ndim >= 3})
+        return savez(file, **arrays)
+
+    def recording_update(self, u):
+        compared.append(not u.flags.owndata)
+        return update(self, u)
+
+    monkeypatch.setattr(np, "savez", recording_savez)
+    monkeypatch.setattr(stopping.ExtrapolatedChangeTest, "update", recording_update)
+    _quiet_all_pairs(sphere642, 0.03, max_iterations=101, workers=1, device="cpu", checkpoint=tmp_path / "run.npz")
+    assert len(written) == 1 and set(written[0]) >= {"X", "U", "H", "v"} and all(written[0].values())
+    assert compared == [True, True]
+
+
 def test_interrupt_returns_the_iterate_and_checkpoints(sphere642, tmp_path):
     whole = _quiet_all_pairs(sphere642, 0.05, max_iterations=20, device="cpu")
     path = tmp_path / "run.npz"

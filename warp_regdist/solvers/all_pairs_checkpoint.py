@@ -27,6 +27,8 @@ def checkpoint_bytes(n, m, dtype, max_iterations):
 
 def check_checkpoint_room(path, size):
     """ValueError unless ``path`` can be written and its file system has ``size`` bytes free."""
+    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
+        raise ValueError(f"expected checkpoint as a file name (str or os.PathLike), got {path!r}")
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):

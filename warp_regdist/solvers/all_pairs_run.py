@@ -98,13 +98,13 @@ class PairsRun:
             st.put(name, saved[name])
         st.rho_v = float(saved["rho_v"])
         st.divergences_from_element_state()
-        self.change_test.reset(st.get("U").reshape(-1, 1))
+        self.change_test.reset(st.view("U").reshape(-1, 1))
 
     def save(self, it, seconds, final=None):
         """Write the state at the top of iteration ``it`` to the checkpoint file, atomically; with
         ``final`` (dict of residuals, tolerance) the converged iterate and its result instead."""
         st = self.state
-        data = {name: st.get(name) for name in (("X", "U", "H") if final else STATE_ROWS) + ("v",)}
+        data = {name: st.view(name) for name in (("X", "U", "H") if final else STATE_ROWS) + ("v",)}
         data.update(final or {})
         data.update(iteration=np.array(it), rho_v=np.array(st.rho_v), cg_iterations=np.array(self.cg_total),
                     seconds=np.array(seconds), history=np.array(self.history).reshape(-1, 7),
@@ -168,7 +168,7 @@ class PairsRun:
         if self.progress is not None:
             self.progress(it, res, eps, self._elapsed(), self.memory)
         if self.change_test.due(it):
-            self.change_test.update(st.get("U").reshape(-1, 1))
+            self.change_test.update(st.view("U").reshape(-1, 1))
         if np.all(res <= eps) and self.change_test.settled[0]:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))

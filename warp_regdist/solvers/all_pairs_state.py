@@ -67,15 +67,16 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
 
     Device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
     the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4), the multigrid levels
-    (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus the float64 (n, n) result on the host,
-    the U of the last change test in the solver's precision (and, on a GPU, the copy back to
-    the host in the solver's precision).
+    (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
+    host the float64 (n, n) result, and in the solver's precision the U of the last change test
+    and the change test's difference (and, on a GPU, the copy of one state array at a time to
+    the host; checkpoints write the state from views, not copies, on the CPU).
     """
     W = lane_width(SCALARS[dtype], n)
     cols = -(-n // W) * W
     size = np.dtype(dtype).itemsize
     device_bytes = size * cols * (12 * n + 3 * m)
-    host_bytes = 8 * n * n + size * n * cols * (2 if wp.get_device(device).is_cuda else 1)
+    host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
     return device_bytes, host_bytes
 
 
@@ -302,6 +303,11 @@ class SymmetricADMM:
     def get(self, name):
         """A copy of state array ``name`` as numpy (lane axis last)."""
         return np.array(self.arrays[name].numpy())
+
+    def view(self, name):
+        """State array ``name`` as numpy (lane axis last) without a copy on the CPU (a host copy on
+        CUDA): valid until the next step writes it, for reading the state without doubling it."""
+        return self.arrays[name].numpy()
 
     def put(self, name, values):
         self.arrays[name].assign(values)

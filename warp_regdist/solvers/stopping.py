@@ -73,7 +73,8 @@ class ChangeTest:
         if self.snapshot is None:
             self.snapshot = np.zeros((u.shape[0], self.settled.size), dtype=u.dtype)
         else:
-            self._judge(np.abs(u - self.snapshot[:, :c]).max(axis=0), u)
+            moved = np.subtract(u, self.snapshot[:, :c])
+            self._judge(np.abs(moved, out=moved).max(axis=0), u)
         self.snapshot[:, :c] = u
         return self.settled[:c]
 
