@@ -4,6 +4,7 @@
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline
     python benchmarks/all_pairs.py --reference-scale 0.2   # also a run at tolerances x 0.2 (slow)
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 process vs all cores
+    python benchmarks/all_pairs.py --dtypes float32 --accuracies 0.02 0.01 0.005 --no-baseline
     python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping   # accuracy= against exact minimizers
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
@@ -104,6 +105,8 @@ def main():
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--workers", type=int, nargs="+", default=[0],
                         help="CPU processes of each all_pairs run (0: all cores; several values: one run each)")
+    parser.add_argument("--accuracies", type=float, nargs="+", default=[None],
+                        help="all_pairs(accuracy=) of the runs (default: the tolerances' settings)")
     parser.add_argument("--accuracy", action="store_true", help="accuracy= against exact minimizers of small meshes")
     parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
     args = parser.parse_args()
@@ -125,10 +128,12 @@ def main():
     for dtype in args.dtypes:  # warm the kernel cache (all_pairs and the single-source solver)
         wrd.all_pairs(small, args.alpha_hat, device=args.device, dtype=dtype, max_iterations=2)
         wrd.distance_matrix(small, args.alpha_hat, sources=[0], device=args.device, dtype=dtype)
-    for dtype, workers in ((d, w) for d in args.dtypes for w in args.workers):
-        res = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype=dtype, workers=workers or None)
-        results[dtype] = res.distance
-        row = dict(method="all_pairs", dtype=dtype, n=n, alpha_hat=args.alpha_hat,
+    for dtype, workers, accuracy in ((d, w, a) for d in args.dtypes for w in args.workers for a in args.accuracies):
+        res = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype=dtype, workers=workers or None,
+                            accuracy=accuracy)
+        results[len(rows)] = res.distance
+        row = dict(method="all_pairs" if accuracy is None else f"all_pairs (accuracy {accuracy:g})", dtype=dtype, n=n,
+                   alpha_hat=args.alpha_hat, estimate_pct=round(100 * res.error_estimate, 3),
                    workers=workers or len(os.sched_getaffinity(0)), seconds=round(res.seconds, 2),
                    iterations=res.iterations, cg_iterations=res.cg_iterations, converged=res.converged,
                    memory_gb=round(res.memory_bytes / 1e9, 3), bytes_per_n2=round(res.memory_bytes / n**2, 1),
@@ -141,11 +146,11 @@ def main():
         ref = wrd.all_pairs(mesh, args.alpha_hat, device=args.device, dtype="float64", max_iterations=5000, **tight)
         print(f"reference (tolerances x {args.reference_scale}): {ref.iterations} iterations, {ref.seconds:.1f} s, "
               f"converged {ref.converged}", flush=True)
-        for row in rows:
-            row["error_vs_tight_pct"] = round(100 * float(np.abs(results[row["dtype"]] - ref.distance).max()
+        for i, row in enumerate(rows):
+            row["error_vs_tight_pct"] = round(100 * float(np.abs(results[i] - ref.distance).max()
                                                     / ref.distance.max()), 3)
     if not args.no_baseline:
-        U = results.get("float64", next(iter(results.values())))
+        U = results[0]
         for scale in (1.0, 2.0):
             t0 = time.perf_counter()
             D = wrd.distance_matrix(mesh, scale * args.alpha_hat, symmetrize=True, device=args.device,

@@ -28,7 +28,7 @@ def add_parser(sub) -> None:
     )
     allpairs.add_argument("--accuracy", type=float, default=None, metavar="E",
                           help="the max error accepted, as a fraction of the max distance, in (0, 0.1]: the stopping "
-                          "tolerances follow from it (default: the tolerances' settings, which stop within 0.005)")
+                          "tolerances follow from it (default: the tolerances' settings)")
     allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
     allpairs.add_argument(
         "--checkpoint",

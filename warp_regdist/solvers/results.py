@@ -65,7 +65,8 @@ class AllPairsResult(OptimizeResult):
         (inf before the third test, or while the change grows; see ``eps_change``): the run's
         estimate of max |U - U*| / max U. An estimate, not a bound: against the exact minimizers of
         small irregular meshes the true error at the stop was up to 3.7 times it at accuracy 0.01
-        and 6.8 times at 0.002 (docs/guides/all-pairs.md).
+        and 6.8 times at 0.002, and on the 1,949-vertex cat about 4.6 times at 0.005
+        (docs/guides/all-pairs.md).
     cg_iterations : int
         PCG iterations summed over ADMM iterations (the largest count among the worker processes).
     seconds : float
