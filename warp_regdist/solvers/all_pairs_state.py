@@ -288,7 +288,7 @@ class SymmetricADMM:
         """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
         what the last element step scattered (D = G^T M_F, (n, 3m))."""
         D, m = self.setup.divergence, self.m
-        v = self.get("v").astype(np.float64)
+        v = self.view("v").astype(np.float64)
         z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
         shape = self.arrays["DZ"].numpy().shape
         dz = (D @ z.reshape(3 * m, -1)).reshape(shape)
@@ -299,10 +299,6 @@ class SymmetricADMM:
     def distance(self):
         """U as an (n, n) float64 array (the U-step writes the same value to U_ij and U_ji)."""
         return self.arrays["U"].numpy().reshape(self.n, -1)[:, :self.n].astype(np.float64)
-
-    def get(self, name):
-        """A copy of state array ``name`` as numpy (lane axis last)."""
-        return np.array(self.arrays[name].numpy())
 
     def view(self, name):
         """State array ``name`` as numpy (lane axis last) without a copy on the CPU (a host copy on
