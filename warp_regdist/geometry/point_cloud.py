@@ -39,8 +39,8 @@ class PointCloud(Mesh):
 
     Attributes
     ----------
-    points : (p, 3) ndarray, read-only
-        The vertices.
+    vertices : (p, 3) ndarray, read-only
+        The points.
     elements : (m, 3) ndarray
         The distinct local triangles; ``element_weights`` their multiplicity / 3.
     """
@@ -77,11 +77,6 @@ class PointCloud(Mesh):
     @property
     def element_weights(self):
         return self._weights
-
-    @property
-    def points(self):
-        """(p, 3) ndarray of float64 (read-only): the vertices."""
-        return self.vertices
 
     def _check_manifold_edges(self):
         """A point cloud's triangle set overlaps itself: nothing to check."""
