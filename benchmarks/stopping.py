@@ -130,6 +130,8 @@ def run_single(cache):
                 res = solver.solve(sources)
             row.update({f"{tag}iterations": int(res.iterations), f"{tag}error_pct": error_pct(res.distance, exact),
                         f"{tag}seconds": res.seconds})
+            if not tag:
+                row["estimate_pct"] = 100.0 * res.error_estimate
         rows.append(row)
         print("  " + str(row), file=sys.stderr, flush=True)
     return rows

@@ -20,11 +20,12 @@ from .lanes import chunk_rows, group_blocks, lane_type
 
 IT, CG_TOTAL = 0, 1
 # Rows of ``lane``: the per-lane constants of the test (eps_abs sqrt(n_free) A, |mask A_V|), the
-# change test's maxima and flag, the done / newly-done flags, this check's residuals and
+# change test's maxima and flag, the last window's relative change and the change still to come
+# at its rate (0 before the first test), the done / newly-done flags, this check's residuals and
 # tolerances, and the values recorded when the lane's test first held.
-(EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, SETTLED, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI, EPS_DUAL, DUAL_SCALE,
- RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT) = range(17)
-LANE_ROWS = 17
+(EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, SETTLED, CHANGE, ESTIMATE, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI, EPS_DUAL,
+ DUAL_SCALE, RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT, ESTIMATE_OUT) = range(20)
+LANE_ROWS = 20
 
 
 @functools.cache
@@ -174,8 +175,10 @@ def single_source_kernels(scalar, W, k):
             eps_pri = eps_pri_abs + eps_rel max(|G u|, |z|),  dy = max(|D y|, |mask A_V|),
             eps_dual = eps_dual_abs + eps_rel_dual dy,
             the change test every ``window`` iterations (settled: MOVED = 0 or MOVED <= eps_change UMAX),
+            with c = MOVED / UMAX and c_old the last test's CHANGE, ESTIMATE = c / (1 - c / c_old)
+            (the change still to come at the rate of the last two windows; inf while c does not shrink),
         done once r <= eps_pri, s <= eps_dual and settled (NEWLY marks the first time, which
-        records it, r, s, rho_old / length); then rho = rho_table[it % T] for this iteration
+        records it, r, s, rho_old / length, ESTIMATE); then rho = rho_table[it % T] for this iteration
         and the u-step's CG tolerance per lane,
             atol = min(cg_fraction (eps_dual_abs + dy), eps_dual / 10) / (shift + scale rho),
             atol = min(atol, cg_primal r (alpha + rho) / (shift + scale rho))   (it > 0),
@@ -191,6 +194,8 @@ def single_source_kernels(scalar, W, k):
         moved = lane[MOVED, b]
         top = lane[UMAX, b]
         settled = lane[SETTLED, b]
+        change = lane[CHANGE, b]
+        estimate = lane[ESTIMATE, b]
         done = lane[DONE, b]
         newly = V()
         r_last = lane[R_LAST, b]
@@ -203,6 +208,7 @@ def single_source_kernels(scalar, W, k):
         r_out = lane[R_OUT, b]
         s_out = lane[S_OUT, b]
         rho_out = lane[RHO_OUT, b]
+        estimate_out = lane[ESTIMATE_OUT, b]
         a2 = V()
         rv = V()
         for l in range(W):
@@ -217,6 +223,15 @@ def single_source_kernels(scalar, W, k):
                     settled[l] = zero
                     if moved[l] == zero or moved[l] <= eps_change * top[l]:
                         settled[l] = one
+                    c = zero
+                    if top[l] > zero:
+                        c = moved[l] / top[l]
+                    estimate[l] = scalar(wp.inf)
+                    if c == zero:
+                        estimate[l] = zero
+                    elif c < change[l]:
+                        estimate[l] = c / (one - c / change[l])
+                    change[l] = c
                     moved[l] = zero
                     top[l] = zero
                 if done[l] == zero and r <= eps_pri[l] and s <= eps_dual[l] and settled[l] == one:
@@ -226,6 +241,7 @@ def single_source_kernels(scalar, W, k):
                     r_out[l] = r
                     s_out[l] = s
                     rho_out[l] = rho_old[l] / length
+                    estimate_out[l] = estimate[l]
                 r_last[l] = r
                 s_last[l] = s
                 rho_last[l] = rho_old[l] / length
@@ -238,6 +254,8 @@ def single_source_kernels(scalar, W, k):
         lane[MOVED, b] = moved
         lane[UMAX, b] = top
         lane[SETTLED, b] = settled
+        lane[CHANGE, b] = change
+        lane[ESTIMATE, b] = estimate
         lane[DONE, b] = done
         lane[NEWLY, b] = newly
         lane[R_LAST, b] = r_last
@@ -250,6 +268,7 @@ def single_source_kernels(scalar, W, k):
         lane[R_OUT, b] = r_out
         lane[S_OUT, b] = s_out
         lane[RHO_OUT, b] = rho_out
+        lane[ESTIMATE_OUT, b] = estimate_out
         atol2[b] = a2
         rho[b] = rv
         for q in range(5):

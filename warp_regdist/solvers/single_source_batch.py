@@ -14,8 +14,9 @@ import time
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, IT_OUT, LANE_ROWS, LOAD_NORM,
-                                     R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT, single_source_kernels)
+from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE, ESTIMATE_OUT, IT_OUT,
+                                     LANE_ROWS, LOAD_NORM, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
+                                     single_source_kernels)
 from ..kernels.lanes import lane_kernels, row_dim, thread_span
 from .stopping import tolerance
 
@@ -94,6 +95,7 @@ def device_rule(solver, tol, free):
     lane = np.zeros((LANE_ROWS, free.shape[1]))
     lane[EPS_DUAL_ABS], lane[LOAD_NORM] = eps_dual_abs, load_norm
     lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, tolerance(eps_dual_abs, eps_rel_dual, load_norm)
+    lane[ESTIMATE] = np.inf
     # the u-step's right-hand side is divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
     shift, scale = (solver.alpha, 1.0) if solver._scaled else (1.0, 0.0)
     rule = DeviceRule(
@@ -143,7 +145,7 @@ class BatchIterations:
         self.iterations = np.full(k, -1)
         self.out = np.zeros((n, k))
         self.y_out = np.zeros((m, 3, k)) if keep_duals else None
-        self.r_out, self.s_out, self.rho_out = np.zeros(k), np.zeros(k), np.zeros(k)
+        self.r_out, self.s_out, self.rho_out, self.estimate_out = np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k)
         self.compact_due = False
         self.system_rho = None
         self.last_print = t0
@@ -168,7 +170,7 @@ class BatchIterations:
             self.iterations[cols] = state[IT_OUT, new]
             collect(self.ws, True, new, cols, self.out, self.y_out)
             self.r_out[cols], self.s_out[cols] = state[R_OUT, new], state[S_OUT, new]
-            self.rho_out[cols] = state[RHO_OUT, new]
+            self.rho_out[cols], self.estimate_out[cols] = state[RHO_OUT, new], state[ESTIMATE_OUT, new]
             slot_col[new] = -1
         self.compact_due = new.size > 0
         if self.verbose and (time.perf_counter() - self.last_print > 2.0):

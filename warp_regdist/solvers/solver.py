@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import CG_TOTAL, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
+from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
 from ..kernels.lanes import SCALARS, lane_type, lane_width
 from ..geometry.mesh import Mesh
 from .multigrid import Hierarchy, smoothed_aggregation
@@ -205,7 +205,7 @@ class DistanceSolver:
             return None if x is None else [x]
 
         res = self._solve_many(one(sources), verbose, initial, True, schedule, one(points), one(curve), closed)
-        for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty"):
+        for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty", "error_estimate"):
             res[key] = res[key][0].item()
         for key in ("distance", "refined_distance", "signed_distance"):
             if key in res:
@@ -269,7 +269,7 @@ class DistanceSolver:
                 finally:
                     others = pool.finish()
                 parts = mine + [part for parts_of_worker in others for part in parts_of_worker]
-        keys = ("distance", "iterations", "converged", "primal_residual", "dual_residual", "penalty")
+        keys = ("distance", "iterations", "converged", "primal_residual", "dual_residual", "penalty", "error_estimate")
         res = DistanceResult(
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
@@ -407,8 +407,8 @@ class DistanceSolver:
         batch = ColumnBatch(self, ws, W, nb, tol.change_window, rule, tol.relaxation)
         run = BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
         it, reason = run_iterations(run, 0, tol.max_iterations, _CHECK_EVERY[self.device.is_cuda])
-        iterations, out, y_out, r_out, s_out, rho_out = (run.iterations, run.out, run.y_out, run.r_out, run.s_out,
-                                                          run.rho_out)
+        iterations, out, y_out, r_out, s_out, rho_out, estimate = (run.iterations, run.out, run.y_out, run.r_out,
+                                                                    run.s_out, run.rho_out, run.estimate_out)
         state = ws.lane.numpy().reshape(LANE_ROWS, -1)  # the last iterate's, tested or not (Ctrl-C)
 
         late = np.flatnonzero(slot_col[:batch.blocks * W] >= 0)
@@ -416,6 +416,7 @@ class DistanceSolver:
             cols = slot_col[late]
             collect(ws, False, late, cols, out, y_out)
             r_out[cols], s_out[cols], rho_out[cols] = state[R_LAST, late], state[S_LAST, late], state[RHO_LAST, late]
+            estimate[cols] = state[ESTIMATE, late]
         u = out
         for j, (src, reach) in enumerate(sets):
             u[~reach, j] = np.inf
@@ -423,7 +424,7 @@ class DistanceSolver:
         converged = iterations >= 0
         res = DistanceResult(
             distance=u, iterations=np.where(converged, iterations, it), converged=converged,
-            primal_residual=r_out, dual_residual=s_out, penalty=rho_out,
+            primal_residual=r_out, dual_residual=s_out, penalty=rho_out, error_estimate=estimate,
             cg_iterations=int(ws.step.numpy()[CG_TOTAL]), seconds=time.perf_counter() - t0,
             interrupted=reason == INTERRUPTED)
         if keep_duals:
