@@ -17,6 +17,7 @@ from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
 from .geometry.regularizers import REGULARIZERS
 from .solvers.results import AllPairsResult, DistanceResult
+from .solvers.gradients import Gradients
 from .solvers.solver import DistanceSolver
 from .matrices.source_rows import distance_matrix
 from .geometry.tetrahedralize import tetrahedralize
@@ -28,6 +29,6 @@ __version__ = "0.1.0"
 _moved.install()
 
 __all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
-           "DistanceSolver", "DistanceResult", "ConvergenceWarning", "REGULARIZERS", "line_field",
+           "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "show", "__version__"]

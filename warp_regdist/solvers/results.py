@@ -3,6 +3,7 @@ both ``scipy.optimize.OptimizeResult`` (a dict with attribute access)."""
 
 from __future__ import annotations
 
+import numpy as np
 from scipy.optimize import OptimizeResult
 
 __all__ = ["DistanceResult", "AllPairsResult", "RESIDUAL_NAMES"]
@@ -44,7 +45,58 @@ class DistanceResult(OptimizeResult):
         this mesh's) and the distance on all its vertices; ``duals`` then belong to it.
     signed_distance : (n,) or (n, k) ndarray
         With ``closed=True`` on a triangle mesh: ``distance``, negative on the left of the curve.
+
+    Methods
+    -------
+    vjp(grad_u)
+        Gradients of a loss through the solve (vertex sources, Dirichlet regularizer).
     """
+
+    def _attach(self, solver, source_sets):
+        """Keep the solver and the vertex source sets for :meth:`vjp` (an attribute, not a key)."""
+        object.__setattr__(self, "_problem", (solver, source_sets))
+
+    def vjp(self, grad_u):
+        """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
+        ((n,) after :meth:`~warp_regdist.DistanceSolver.solve`, (n, k) after ``solve_many``;
+        entries on sources and unreachable vertices are ignored) with respect to the vertex
+        positions and alpha_hat, by implicit differentiation of the barrier-smoothed problem at
+        the solution (docs/method.md section 10, ``tolerances.gradient_smoothing``).
+
+        Returns a :class:`~warp_regdist.Gradients`: ``vertices`` (n, 3) dL/dx,
+        ``alpha_hat`` dL/dalpha_hat, ``smoothed_distance`` (the minimizer whose derivative it is)
+        and ``smoothing_change`` (its distance from ``distance``, in units of the max distance).
+        """
+        from .gradients import vector_jacobian_product
+
+        solver, source_sets = vars(self).get("_problem", (None, None))
+        if solver is None:
+            raise ValueError("expected a result of DistanceSolver.solve or solve_many from vertex sources to "
+                             "differentiate, got one from points or curves (or a copy)")
+        if solver.regularizer.name != "dirichlet" or solver.mesh.element_weights is not None:
+            what = "a point cloud" if solver.mesh.element_weights is not None else repr(solver.regularizer.name)
+            raise ValueError(f"expected the Dirichlet regularizer on a mesh to differentiate, got {what}")
+        converged = np.atleast_1d(self.converged)
+        if not converged.all():
+            raise ValueError(f"expected a converged solve to differentiate, got {np.count_nonzero(~converged)} of "
+                             f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
+        distance = np.asarray(self.distance)
+        try:
+            grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
+        except (TypeError, ValueError):
+            grad = None
+        if grad is None:
+            raise ValueError(f"expected grad_u as a real array of shape {distance.shape}, got {type(grad_u).__name__}")
+        if grad.shape != distance.shape:
+            raise ValueError(f"expected grad_u of shape {distance.shape} (the distance's), got {grad.shape}")
+        if not np.all(np.isfinite(grad)):
+            raise ValueError("expected finite grad_u, got NaN or inf")
+        two = distance.ndim == 1
+        out = vector_jacobian_product(solver, distance[:, None] if two else distance, source_sets,
+                                      grad[:, None] if two else grad)
+        if two:
+            out["smoothed_distance"] = out.smoothed_distance[:, 0]
+        return out
 
 
 RESIDUAL_NAMES = ("r1", "r2", "s1", "s2", "rx1", "rx2", "sx")

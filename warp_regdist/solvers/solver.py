@@ -285,6 +285,7 @@ class DistanceSolver:
             warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
                           stacklevel=3)
+        res._attach(self, source_sets)
         return res
 
     def _max_gradient(self, distance):

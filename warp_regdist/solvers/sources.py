@@ -161,6 +161,7 @@ def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, 
                                                solver.workers, **args))
     res = solver._refined[1]._solve_many([s.tolist() for s in S.sets], verbose, None, keep_duals, schedule)
     n = solver.mesh.n_vertices
+    res._attach(None, None)   # no vjp: the refined mesh's new vertices move with the points
     res["refined_mesh"] = S.refinement.mesh
     res["refined_distance"] = res.distance
     res["distance"] = res.distance[:n]

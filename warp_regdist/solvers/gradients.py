@@ -1,0 +1,212 @@
+"""Vector-Jacobian products of converged single-source solves (docs/method.md section 10).
+
+The derivative is that of the smoothed problem
+
+    minimize_u  F(u) = -A_V . u + (alpha / 2) sum_e a_e |g_e|^2 - mu sum_e log(1 - |g_e|^2),
+    g_e = (G u)_e,  u = 0 on the sources,  alpha = alpha_hat A^(1/d),  mu = mu_hat A^(1 + 1/d) / m,
+
+(m elements, A their total volume) whose minimizer u_mu is a smooth function of the vertex
+positions and alpha_hat and tends to the ADMM's minimizer as mu_hat -> 0
+(``tolerances.gradient_smoothing``). Its stationarity grad_u F(u_mu; x, alpha_hat) = 0 gives, for a
+loss gradient b = dL/du (free vertices), the adjoint H w = b (H = grad_u^2 F at u_mu, symmetric
+positive definite) and
+
+    dL/dx = -d/dx [w . grad_u F(u_mu; x, alpha_hat)],   dL/dalpha_hat = -A^(1/d) w . (W_D u_mu),
+
+the first by the reverse pass of the per-element kernels in kernels/adjoint.py.
+
+The exact problem's active-set system is singular or ill-conditioned on real meshes (faces
+where |g| = 1 whose multipliers vanish); the barrier gives every element a positive multiplier
+2 mu / (1 - |g|^2), so H is positive definite and the derivative is unique. Every element's
+barrier has the same weight (mean element volume), not its own volume: with a_e in front, a sliver
+of a thousandth of the mean area keeps Newton's method from converging. u_mu is found by Newton's
+method (steps that keep a tenth of every element's slack 1 - |g|^2, then backtracking), from the
+ADMM distance, along mu_hat = 10^-2, 10^-3, ... down to the final mu_hat; H is factorized by
+scipy's SuperLU.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import warp as wp
+from scipy.optimize import OptimizeResult
+
+from ..kernels import adjoint
+from ..tolerances import tolerances
+
+__all__ = ["Gradients", "SmoothedProblem", "vector_jacobian_product"]
+
+_START = 1e-2            # mu_hat of the first level; each level divides it by _RATIO down to the final mu_hat
+_RATIO = 10.0
+_CENTERING = 1.0         # an intermediate level stops at a Newton decrement^2 / 2 <= this mu
+_MAX_NEWTON = 60         # Newton steps per level
+_INTERIOR = 1.0 - 1e-3   # the ADMM distance is scaled so that max |g| is at most this
+_TO_BOUNDARY = 0.9       # a Newton step keeps at least a tenth of every element's slack 1 - |g|^2
+
+
+class Gradients(OptimizeResult):
+    """Result of :meth:`~warp_regdist.DistanceResult.vjp`.
+
+    Attributes
+    ----------
+    vertices : (n, 3) ndarray
+        dL/dx, the loss's gradient with respect to the vertex positions (summed over columns).
+    alpha_hat : float
+        dL/dalpha_hat.
+    smoothed_distance : (n,) or (n, k) ndarray
+        u_mu, the smoothed problem's minimizer whose derivative this is.
+    smoothing_change : float
+        max |u_mu - distance| / max distance over the columns: how far the smoothed minimizer is
+        from the returned distance (the ADMM's error plus the smoothing's).
+    newton_iterations : int
+        Newton steps summed over columns.
+    seconds : float
+    """
+
+
+def _factor(H):
+    """SuperLU factors of the SPD matrix H (CSC): a symmetric ordering of H + H^T and no pivoting."""
+    return spla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+
+
+class SmoothedProblem:
+    """The smoothed problem of one column (module docstring): operators of a Mesh (``ops``),
+    alpha, mu_hat, and ``free`` (n,) bool, the vertices that are neither sources nor unreachable."""
+
+    def __init__(self, ops, alpha, mu_hat, free):
+        m = ops.element_volumes.size
+        self.ops, self.alpha, self.free = ops, float(alpha), free
+        self.mu = float(mu_hat) * ops.total_volume * ops.length_scale / m
+        self.G = ops.grad[:, free].tocsr()
+        self.m = m
+        self.load = ops.vertex_volumes[free]
+        self.mu_hat = float(mu_hat)
+        self.scale = ops.total_volume * ops.length_scale    # the units of F
+
+    def _g(self, v):
+        g = (self.G @ v).reshape(self.m, 3)
+        return g, np.einsum("ec,ec->e", g, g)
+
+    def objective(self, v, mu):
+        g, t = self._g(v)
+        a = self.ops.element_volumes
+        return -self.load @ v + 0.5 * self.alpha * (a @ t) - mu * np.sum(np.log1p(-t))
+
+    def gradient_hessian(self, v, mu):
+        """grad F (f,) and H (f, f) CSC on the free vertices at v (max |g| < 1)."""
+        g, t = self._g(v)
+        a, inv = self.ops.element_volumes, 1.0 / (1.0 - t)
+        c = a * self.alpha + 2.0 * mu * inv
+        grad = -self.load + self.G.T @ (c[:, None] * g).ravel()
+        blocks = c[:, None, None] * np.eye(3) + (4.0 * mu * inv ** 2)[:, None, None] * g[:, :, None] * g[:, None, :]
+        B = sp.csr_matrix((blocks.ravel(), np.repeat(np.arange(3 * self.m).reshape(-1, 3), 3, axis=0).ravel(),
+                           np.arange(0, 9 * self.m + 1, 3)), shape=(3 * self.m, 3 * self.m))
+        return grad, (self.G.T @ B @ self.G).tocsc()
+
+    def max_gradient_squared(self, v):
+        return float(np.max(self._g(v)[1], initial=0.0))
+
+    def step_length(self, v, step):
+        """The largest s <= 1 that keeps 1 - |g + s dg|^2 >= (1 - _TO_BOUNDARY)(1 - |g|^2) on every element
+        (g = G v, dg = G step): the positive root of |dg|^2 s^2 + 2 (g . dg) s - _TO_BOUNDARY (1 - |g|^2)."""
+        g, t = self._g(v)
+        dg = (self.G @ step).reshape(self.m, 3)
+        a, b = np.einsum("ec,ec->e", dg, dg), 2.0 * np.einsum("ec,ec->e", g, dg)
+        c = -_TO_BOUNDARY * (1.0 - t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            roots = (-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)     # a > 0 > c: one positive root
+        return float(min(1.0, np.min(roots[a > 0], initial=1.0)))
+
+    def minimize(self, v):
+        """u_mu on the free vertices from v (f,), H there and its LU factors, and the Newton steps."""
+        top = self.max_gradient_squared(v)
+        if top >= _INTERIOR ** 2:
+            v = v * (_INTERIOR / np.sqrt(top))
+        steps = 0
+        levels = max(0, int(np.ceil(np.log(_START / self.mu_hat) / np.log(_RATIO))))
+        for level in range(levels, -1, -1):
+            mu = self.mu * _RATIO ** level
+            tight = 1e-20 * self.scale if level == 0 else _CENTERING * mu
+            last = np.inf
+            for _ in range(_MAX_NEWTON):
+                grad, H = self.gradient_hessian(v, mu)
+                step = -_factor(H).solve(grad)
+                decrement = -grad @ step
+                steps += 1
+                # converged, or stalled where rounding in grad F bounds the decrement
+                if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):
+                    break
+                last = decrement
+                s = self.step_length(v, step)
+                if decrement > 1e-10 * self.scale:  # Armijo, where F's rounding does not hide the decrease
+                    f0 = self.objective(v, mu)
+                    while s > 1e-12 and self.objective(v + s * step, mu) > f0 - 0.25 * s * decrement:
+                        s *= 0.5
+                v = v + s * step
+            else:
+                raise RuntimeError(f"expected the smoothed problem's Newton iteration to converge at mu = {mu:.3g}, "
+                                   f"got a Newton decrement {decrement:.3g} after {_MAX_NEWTON} steps")
+        _, H = self.gradient_hessian(v, self.mu)
+        return v, H, _factor(H), steps
+
+
+def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
+    """-d/dx [w . grad_u F(u; x, alpha_hat)] (n, 3) by the reverse pass of kernels/adjoint.py:
+    w . grad_u F = sum(load) + alpha sum(dirichlet) + mu sum(barrier), alpha = alpha_hat A^(1/d),
+    mu = mu_hat A^(1 + 1/d) / m, A = sum(volume)."""
+    T = mesh.elements
+    m, d = T.shape[0], T.shape[1] - 1
+    kernel = adjoint.triangle_terms if d == 2 else adjoint.tetrahedron_terms
+    x = wp.array(mesh.vertices, dtype=wp.vec3d, device="cpu", requires_grad=True)
+    out = [wp.zeros(m, dtype=wp.float64, device="cpu", requires_grad=True) for _ in range(4)]
+    tape = wp.Tape()
+    with tape:
+        wp.launch(kernel, m, device="cpu", inputs=[x, wp.array(T.astype(np.int32), dtype=wp.int32, device="cpu"),
+                                                   wp.array(u, dtype=wp.float64, device="cpu"),
+                                                   wp.array(w, dtype=wp.float64, device="cpu")], outputs=out)
+    dirichlet, barrier, A = (float(o.numpy().sum()) for o in out[1:])
+    s = A ** (1.0 / d)
+    alpha, mu = alpha_hat * s, mu_hat * A * s / m
+    dA = (alpha * dirichlet / d + mu * barrier * (1.0 + 1.0 / d)) / A   # through alpha(A) and mu(A)
+    seeds = (1.0, alpha, mu, dA)
+    tape.backward(grads={o: wp.full(m, c, dtype=wp.float64, device="cpu") for o, c in zip(out, seeds)})
+    return -x.grad.numpy()
+
+
+def vector_jacobian_product(solver, distance, source_sets, grad_u):
+    """The :class:`Gradients` of sum(grad_u * distance) (module docstring) for the columns of a
+    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k)."""
+    t0 = time.perf_counter()
+    mesh, ops = solver.mesh, solver.operators
+    s = ops.length_scale
+    mu_hat = float(tolerances.gradient_smoothing)
+    if not mu_hat > 0.0:
+        raise ValueError(f"expected tolerances.gradient_smoothing > 0, got {mu_hat!r}")
+    n, k = distance.shape
+    vertices, alpha_hat, steps, change = np.zeros((n, 3)), 0.0, 0, 0.0
+    smoothed = np.zeros((n, k))
+    for j in range(k):
+        sources, reachable = solver._source_mask(source_sets[j], j)
+        free = reachable.copy()
+        free[sources] = False
+        problem = SmoothedProblem(ops, solver.alpha, mu_hat, free)
+        v, H, lu, count = problem.minimize(distance[free, j])
+        steps += count
+        u = np.zeros(n)
+        u[free] = v
+        b = np.ascontiguousarray(grad_u[free, j], dtype=np.float64)
+        w = np.zeros(n)
+        w[free] = lu.solve(b)
+        w[free] += lu.solve(b - H @ w[free])   # one step of iterative refinement: H's condition reaches 1e12
+        vertices += _position_gradient(mesh, u, w, solver.alpha_hat, mu_hat)
+        alpha_hat -= s * float(w @ (ops.stiffness @ u))
+        smoothed[:, j] = np.where(reachable, u, np.inf)
+        top = np.max(distance[reachable, j], initial=0.0)
+        if top > 0:
+            change = max(change, float(np.abs(u - distance[:, j])[reachable].max() / top))
+    return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
+                     newton_iterations=steps, seconds=time.perf_counter() - t0)
