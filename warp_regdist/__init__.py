@@ -28,6 +28,16 @@ __version__ = "0.1.0"
 
 _moved.install()
 
+
+def __getattr__(name):
+    """``warp_regdist.torch`` (PyTorch autograd, the [torch] extra) imports on first use."""
+    if name == "torch":
+        import importlib
+
+        return importlib.import_module(".torch", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",

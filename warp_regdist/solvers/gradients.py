@@ -28,6 +28,7 @@ scipy's SuperLU.
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -38,7 +39,8 @@ from scipy.optimize import OptimizeResult
 from ..kernels import adjoint
 from ..tolerances import tolerances
 
-__all__ = ["Gradients", "SmoothedProblem", "vector_jacobian_product"]
+__all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
+           "vector_jacobian_product"]
 
 _START = 1e-2            # mu_hat of the first level; each level divides it by _RATIO down to the final mu_hat
 _RATIO = 10.0
@@ -177,36 +179,62 @@ def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
     return -x.grad.numpy()
 
 
+class SmoothedSolution(NamedTuple):
+    """u_mu of one column: ``distance`` (n,) (inf where no source reaches), ``free`` (n,) bool, the
+    Hessian ``H`` and its factors ``lu`` on the free vertices, Newton ``steps``, ``mu_hat``."""
+    distance: np.ndarray
+    free: np.ndarray
+    H: sp.csc_matrix
+    lu: object
+    steps: int
+    mu_hat: float
+
+
+def smoothed_solution(solver, distance, sources, column=0):
+    """The :class:`SmoothedSolution` of ``solver``'s problem from vertex ``sources``, by Newton's method
+    from ``distance`` (n,), a converged solve's (``column`` names the source set in errors)."""
+    mu_hat = float(tolerances.gradient_smoothing)
+    if not mu_hat > 0.0:
+        raise ValueError(f"expected tolerances.gradient_smoothing > 0, got {mu_hat!r}")
+    sources, reachable = solver._source_mask(sources, column)
+    free = reachable.copy()
+    free[sources] = False
+    v, H, lu, steps = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
+    u = np.where(reachable, 0.0, np.inf)
+    u[free] = v
+    return SmoothedSolution(u, free, H, lu, steps, mu_hat)
+
+
+def adjoint_gradients(solver, solution, b):
+    """(dL/dx (n, 3), dL/dalpha_hat) for dL/du = ``b`` (n,) at a :class:`SmoothedSolution`: H w = b on the
+    free vertices, then the module docstring's formulas."""
+    f = solution.free
+    rhs = np.ascontiguousarray(b[f], dtype=np.float64)
+    w = np.zeros(f.size)
+    w[f] = solution.lu.solve(rhs)
+    w[f] += solution.lu.solve(rhs - solution.H @ w[f])   # one step of iterative refinement: H's condition reaches 1e12
+    u = np.where(f, solution.distance, 0.0)
+    dx = _position_gradient(solver.mesh, u, w, solver.alpha_hat, solution.mu_hat)
+    return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
+
+
 def vector_jacobian_product(solver, distance, source_sets, grad_u):
     """The :class:`Gradients` of sum(grad_u * distance) (module docstring) for the columns of a
     converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k)."""
     t0 = time.perf_counter()
-    mesh, ops = solver.mesh, solver.operators
-    s = ops.length_scale
-    mu_hat = float(tolerances.gradient_smoothing)
-    if not mu_hat > 0.0:
-        raise ValueError(f"expected tolerances.gradient_smoothing > 0, got {mu_hat!r}")
     n, k = distance.shape
     vertices, alpha_hat, steps, change = np.zeros((n, 3)), 0.0, 0, 0.0
     smoothed = np.zeros((n, k))
     for j in range(k):
-        sources, reachable = solver._source_mask(source_sets[j], j)
-        free = reachable.copy()
-        free[sources] = False
-        problem = SmoothedProblem(ops, solver.alpha, mu_hat, free)
-        v, H, lu, count = problem.minimize(distance[free, j])
-        steps += count
-        u = np.zeros(n)
-        u[free] = v
-        b = np.ascontiguousarray(grad_u[free, j], dtype=np.float64)
-        w = np.zeros(n)
-        w[free] = lu.solve(b)
-        w[free] += lu.solve(b - H @ w[free])   # one step of iterative refinement: H's condition reaches 1e12
-        vertices += _position_gradient(mesh, u, w, solver.alpha_hat, mu_hat)
-        alpha_hat -= s * float(w @ (ops.stiffness @ u))
-        smoothed[:, j] = np.where(reachable, u, np.inf)
-        top = np.max(distance[reachable, j], initial=0.0)
+        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j)
+        dx, da = adjoint_gradients(solver, solution, grad_u[:, j])
+        vertices += dx
+        alpha_hat += da
+        steps += solution.steps
+        smoothed[:, j] = solution.distance
+        reach = np.isfinite(solution.distance)
+        top = np.max(distance[reach, j], initial=0.0)
         if top > 0:
-            change = max(change, float(np.abs(u - distance[:, j])[reachable].max() / top))
+            change = max(change, float(np.abs(solution.distance - distance[:, j])[reach].max() / top))
     return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
                      newton_iterations=steps, seconds=time.perf_counter() - t0)
