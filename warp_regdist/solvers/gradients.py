@@ -21,8 +21,8 @@ where |g| = 1 whose multipliers vanish); the barrier gives every element a posit
 barrier has the same weight (mean element volume), not its own volume: with a_e in front, a sliver
 of a thousandth of the mean area keeps Newton's method from converging. u_mu is found by Newton's
 method (steps that keep a tenth of every element's slack 1 - |g|^2, then backtracking), from the
-ADMM distance, along mu_hat = 10^-2, 10^-3, ... down to the final mu_hat; H is factorized by
-scipy's SuperLU.
+ADMM distance, along mu_hat = 10^-2, 10^-3, ... down to the final mu_hat, with a predictor step
+along the central path's tangent between levels; H is factorized by scipy's SuperLU.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solutio
 
 _START = 1e-2            # mu_hat of the first level; each level divides it by _RATIO down to the final mu_hat
 _RATIO = 10.0
-_CENTERING = 1.0         # an intermediate level stops at a Newton decrement^2 / 2 <= this mu
+_CENTERING = 10.0        # an intermediate level stops at a Newton decrement^2 / 2 <= this mu
 _MAX_NEWTON = 60         # Newton steps per level
 _INTERIOR = 1.0 - 1e-3   # the ADMM distance is scaled so that max |g| is at most this
 _TO_BOUNDARY = 0.9       # a Newton step keeps at least a tenth of every element's slack 1 - |g|^2
@@ -70,9 +70,19 @@ class Gradients(OptimizeResult):
     """
 
 
-def _factor(H):
-    """SuperLU factors of the SPD matrix H (CSC): a symmetric ordering of H + H^T and no pivoting."""
-    return spla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+class _Factor:
+    """Solves of the SPD matrix H (CSC) by SuperLU on D H D, D = diag(H)^(-1/2) (a symmetric ordering,
+    no pivoting), each with one step of iterative refinement: H's condition reaches 1e12 and more."""
+
+    def __init__(self, H):
+        self.H, self.d = H, 1.0 / np.sqrt(H.diagonal())
+        D = sp.diags(self.d)
+        self.lu = spla.splu((D @ H @ D).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                            options=dict(SymmetricMode=True))
+
+    def solve(self, b):
+        x = self.d * self.lu.solve(self.d * b)
+        return x + self.d * self.lu.solve(self.d * (b - self.H @ x))
 
 
 class SmoothedProblem:
@@ -112,13 +122,13 @@ class SmoothedProblem:
     def max_gradient_squared(self, v):
         return float(np.max(self._g(v)[1], initial=0.0))
 
-    def step_length(self, v, step):
-        """The largest s <= 1 that keeps 1 - |g + s dg|^2 >= (1 - _TO_BOUNDARY)(1 - |g|^2) on every element
-        (g = G v, dg = G step): the positive root of |dg|^2 s^2 + 2 (g . dg) s - _TO_BOUNDARY (1 - |g|^2)."""
+    def step_length(self, v, step, keep=1.0 - _TO_BOUNDARY):
+        """The largest s <= 1 that keeps 1 - |g + s dg|^2 >= keep (1 - |g|^2) on every element
+        (g = G v, dg = G step): the positive root of |dg|^2 s^2 + 2 (g . dg) s - (1 - keep) (1 - |g|^2)."""
         g, t = self._g(v)
         dg = (self.G @ step).reshape(self.m, 3)
         a, b = np.einsum("ec,ec->e", dg, dg), 2.0 * np.einsum("ec,ec->e", g, dg)
-        c = -_TO_BOUNDARY * (1.0 - t)
+        c = -(1.0 - keep) * (1.0 - t)
         with np.errstate(divide="ignore", invalid="ignore"):
             roots = (-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)     # a > 0 > c: one positive root
         return float(min(1.0, np.min(roots[a > 0], initial=1.0)))
@@ -136,7 +146,8 @@ class SmoothedProblem:
             last = np.inf
             for _ in range(_MAX_NEWTON):
                 grad, H = self.gradient_hessian(v, mu)
-                step = -_factor(H).solve(grad)
+                lu = _Factor(H)
+                step = -lu.solve(grad)
                 decrement = -grad @ step
                 steps += 1
                 # converged, or stalled where rounding in grad F bounds the decrement
@@ -152,8 +163,11 @@ class SmoothedProblem:
             else:
                 raise RuntimeError(f"expected the smoothed problem's Newton iteration to converge at mu = {mu:.3g}, "
                                    f"got a Newton decrement {decrement:.3g} after {_MAX_NEWTON} steps")
-        _, H = self.gradient_hessian(v, self.mu)
-        return v, H, _factor(H), steps
+            if level > 0:  # predictor along the central path's tangent du/dmu = -H^-1 d(grad F)/dmu, keeping half the slack
+                g, t = self._g(v)
+                tangent = lu.solve(self.G.T @ ((2.0 / (1.0 - t))[:, None] * g).ravel()) * (mu - mu / _RATIO)
+                v = v + self.step_length(v, tangent, keep=0.5) * tangent
+        return v, H, lu, steps
 
 
 def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
@@ -212,7 +226,6 @@ def adjoint_gradients(solver, solution, b):
     rhs = np.ascontiguousarray(b[f], dtype=np.float64)
     w = np.zeros(f.size)
     w[f] = solution.lu.solve(rhs)
-    w[f] += solution.lu.solve(rhs - solution.H @ w[f])   # one step of iterative refinement: H's condition reaches 1e12
     u = np.where(f, solution.distance, 0.0)
     dx = _position_gradient(solver.mesh, u, w, solver.alpha_hat, solution.mu_hat)
     return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))

@@ -274,6 +274,7 @@ class DistanceSolver:
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
+        res._attach(self, source_sets)
         gradient = self._max_gradient(res.distance)
         steep = ~(gradient <= tolerances.max_gradient)  # also NaN
         res.converged &= ~steep
@@ -283,9 +284,7 @@ class DistanceSolver:
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
-                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
-                          stacklevel=3)
-        res._attach(self, source_sets)
+                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return res
 
     def _max_gradient(self, distance):
