@@ -13,6 +13,8 @@ ball and cube (a vertex and the boundary as sources). The exact minimizer of
 each discrete problem (all pairs also on decimations to 60-80 vertices) is solved by cvxpy + Clarabel (tests/reference_solver.py,
 tests/all_pairs_reference.py) and cached in --cache. Each case runs at the package's
 defaults and, in the same process, at the previous defaults (``PREVIOUS``), one thread.
+Single sources also on spot_rr decimated to 955 vertices (three sources, alpha_hat 0.01-0.2), and
+each single-source result polished (``DistanceResult.polish``): its error and how far it moved.
 Error: max over vertices (pairs) of |u - u_exact| in % of max u_exact. Writes
 benchmarks/results/stopping.csv and prints a table.
 """
@@ -110,6 +112,8 @@ def single_cases():
         mesh = meshes.shared_mesh(name)
         if mesh is not None:
             out.append((name, mesh, [source], 0.05))
+    spot955 = decimated("spot_rr", 954)
+    out += [("spot_rr decimated", spot955, [s], a) for s in (0, 100, 500) for a in (0.01, 0.05, 0.2)]
     return out
 
 
@@ -132,6 +136,9 @@ def run_single(cache):
                         f"{tag}seconds": res.seconds})
             if not tag:
                 row["estimate_pct"] = 100.0 * res.error_estimate
+                polished = res.polish()
+                row["polished_error_pct"] = error_pct(polished.distance, exact)
+                row["polish_change_pct"] = 100.0 * polished.polish_change
         rows.append(row)
         print("  " + str(row), file=sys.stderr, flush=True)
     return rows

@@ -50,11 +50,31 @@ class DistanceResult(OptimizeResult):
     -------
     vjp(grad_u)
         Gradients of a loss through the solve (vertex sources, Dirichlet regularizer).
+    polish()
+        The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
     def _attach(self, solver, source_sets):
         """Keep the solver and the vertex source sets for :meth:`vjp` (an attribute, not a key)."""
         object.__setattr__(self, "_problem", (solver, source_sets))
+
+    def _smoothable(self, verb):
+        """(solver, source sets, distance (n, k), one column?) after the checks that :meth:`vjp` and
+        :meth:`polish` share (``verb`` names the operation in their messages)."""
+        solver, source_sets = vars(self).get("_problem", (None, None))
+        if solver is None:
+            raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertex sources to "
+                             f"{verb}, got one from points or curves (or a copy)")
+        if solver.regularizer.name != "dirichlet" or solver.mesh.element_weights is not None:
+            what = "a point cloud" if solver.mesh.element_weights is not None else repr(solver.regularizer.name)
+            raise ValueError(f"expected the Dirichlet regularizer on a mesh to {verb}, got {what}")
+        converged = np.atleast_1d(self.converged)
+        if not converged.all():
+            raise ValueError(f"expected a converged solve to {verb}, got {np.count_nonzero(~converged)} of "
+                             f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
+        distance = np.asarray(self.distance)
+        one = distance.ndim == 1
+        return solver, source_sets, distance[:, None] if one else distance, one
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
@@ -69,33 +89,44 @@ class DistanceResult(OptimizeResult):
         """
         from .gradients import vector_jacobian_product
 
-        solver, source_sets = vars(self).get("_problem", (None, None))
-        if solver is None:
-            raise ValueError("expected a result of DistanceSolver.solve or solve_many from vertex sources to "
-                             "differentiate, got one from points or curves (or a copy)")
-        if solver.regularizer.name != "dirichlet" or solver.mesh.element_weights is not None:
-            what = "a point cloud" if solver.mesh.element_weights is not None else repr(solver.regularizer.name)
-            raise ValueError(f"expected the Dirichlet regularizer on a mesh to differentiate, got {what}")
-        converged = np.atleast_1d(self.converged)
-        if not converged.all():
-            raise ValueError(f"expected a converged solve to differentiate, got {np.count_nonzero(~converged)} of "
-                             f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
-        distance = np.asarray(self.distance)
+        solver, source_sets, distance, one = self._smoothable("differentiate")
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
         except (TypeError, ValueError):
             grad = None
+        shape = distance.shape[:1] if one else distance.shape
         if grad is None:
-            raise ValueError(f"expected grad_u as a real array of shape {distance.shape}, got {type(grad_u).__name__}")
-        if grad.shape != distance.shape:
-            raise ValueError(f"expected grad_u of shape {distance.shape} (the distance's), got {grad.shape}")
+            raise ValueError(f"expected grad_u as a real array of shape {shape}, got {type(grad_u).__name__}")
+        if grad.shape != shape:
+            raise ValueError(f"expected grad_u of shape {shape} (the distance's), got {grad.shape}")
         if not np.all(np.isfinite(grad)):
             raise ValueError("expected finite grad_u, got NaN or inf")
-        two = distance.ndim == 1
-        out = vector_jacobian_product(solver, distance[:, None] if two else distance, source_sets,
-                                      grad[:, None] if two else grad)
-        if two:
+        out = vector_jacobian_product(solver, distance, source_sets, grad[:, None] if one else grad)
+        if one:
             out["smoothed_distance"] = out.smoothed_distance[:, 0]
+        return out
+
+    def polish(self):
+        """This result with ``distance`` replaced by the minimizer of the barrier-smoothed problem
+        (docs/method.md section 10), found by Newton's method from it: within about 1e-4 of the max
+        distance of the exact minimizer, where the ADMM stops 0.1-0.7% away, for 4-6 times the
+        solve's time. ``polish_change`` (float or (k,)) is how far it moved, in units of the max
+        distance: the ADMM's own error, to within the smoothing's. ``error_estimate`` is dropped.
+        Vertex sources and the Dirichlet regularizer only, like :meth:`vjp`.
+        """
+        from .gradients import smoothed_solution
+
+        solver, source_sets, distance, one = self._smoothable("polish")
+        out = DistanceResult(self)
+        out._attach(solver, source_sets)
+        del out["error_estimate"]
+        polished, change = np.empty_like(distance), np.zeros(distance.shape[1])
+        for j in range(distance.shape[1]):
+            polished[:, j] = smoothed_solution(solver, distance[:, j], source_sets[j], j).distance
+            reach = np.isfinite(distance[:, j])
+            top = np.max(distance[reach, j], initial=0.0)
+            change[j] = np.abs(polished[reach, j] - distance[reach, j]).max(initial=0.0) / top if top > 0 else 0.0
+        out["distance"], out["polish_change"] = (polished[:, 0], change[0].item()) if one else (polished, change)
         return out
 
 
