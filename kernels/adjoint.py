@@ -49,10 +49,15 @@ def _tetrahedron(x0: wp.vec3d, x1: wp.vec3d, x2: wp.vec3d, x3: wp.vec3d):
 
 
 @wp.func
-def _terms(a: wp.float64, g: wp.vec3d, gw: wp.vec3d, wsum: wp.float64, corners: wp.float64):
-    """(load, dirichlet, barrier) of one element from its volume, G u, G w and the sum of w on its corners."""
+def _store(e: int, a: wp.float64, g: wp.vec3d, gw: wp.vec3d, wsum: wp.float64, corners: wp.float64,
+           load: wp.array(dtype=wp.float64), dirichlet: wp.array(dtype=wp.float64),
+           barrier: wp.array(dtype=wp.float64), volume: wp.array(dtype=wp.float64)):
+    """Element e's load, dirichlet, barrier and volume from its volume a, G u, G w and the sum of w on its corners."""
     p = wp.dot(gw, g)
-    return -a / corners * wsum, a * p, wp.float64(2.0) * p / (wp.float64(1.0) - wp.dot(g, g))
+    load[e] = -a / corners * wsum
+    dirichlet[e] = a * p
+    barrier[e] = wp.float64(2.0) * p / (wp.float64(1.0) - wp.dot(g, g))
+    volume[e] = a
 
 
 @wp.kernel
@@ -69,11 +74,7 @@ def triangle_terms(x: wp.array(dtype=wp.vec3d), elements: wp.array2d(dtype=wp.in
     b0 = -(b1 + b2)
     g = u[i0] * b0 + u[i1] * b1 + u[i2] * b2
     gw = w[i0] * b0 + w[i1] * b1 + w[i2] * b2
-    le, de, be = _terms(a, g, gw, w[i0] + w[i1] + w[i2], wp.float64(3.0))
-    load[e] = le
-    dirichlet[e] = de
-    barrier[e] = be
-    volume[e] = a
+    _store(e, a, g, gw, w[i0] + w[i1] + w[i2], wp.float64(3.0), load, dirichlet, barrier, volume)
 
 
 @wp.kernel
@@ -91,8 +92,4 @@ def tetrahedron_terms(x: wp.array(dtype=wp.vec3d), elements: wp.array2d(dtype=wp
     b0 = -(b1 + b2 + b3)
     g = u[i0] * b0 + u[i1] * b1 + u[i2] * b2 + u[i3] * b3
     gw = w[i0] * b0 + w[i1] * b1 + w[i2] * b2 + w[i3] * b3
-    le, de, be = _terms(a, g, gw, w[i0] + w[i1] + w[i2] + w[i3], wp.float64(4.0))
-    load[e] = le
-    dirichlet[e] = de
-    barrier[e] = be
-    volume[e] = a
+    _store(e, a, g, gw, w[i0] + w[i1] + w[i2] + w[i3], wp.float64(4.0), load, dirichlet, barrier, volume)
