@@ -206,3 +206,25 @@ def test_vjp_refusals():
     with wrd.tolerances.override(gradient_smoothing=0.0):
         with pytest.raises(ValueError, match="expected tolerances.gradient_smoothing > 0, got 0.0"):
             res.vjp(np.ones(n))
+
+
+def test_unreachable_component_moves_the_distance_only_through_the_total_area():
+    """Two spheres, the source on the first: the second's distance stays inf, and moving its vertices
+    changes alpha = alpha_hat A^(1/2) and mu, hence the first's distance; vjp against central
+    differences of polished solves (h = 1e-6) along a displacement of the second sphere only."""
+    V, F = meshes.icosphere(2)
+    n = len(V)
+    mesh = wrd.Mesh(np.vstack([V, V * 1.3 + [3.0, 0.0, 0.0]]), np.vstack([F, F + n]))
+    res = wrd.DistanceSolver(mesh, 0.1, workers=1).solve([0])
+    b = np.random.default_rng(5).random(2 * n)
+    g = res.vjp(b)
+    assert np.isinf(g.smoothed_distance[n:]).all() and np.isfinite(g.smoothed_distance[:n]).all()
+    D = np.zeros_like(mesh.vertices)
+    D[n:] = np.random.default_rng(6).standard_normal((n, 3))
+
+    def value(h):
+        moved = wrd.Mesh(mesh.vertices + h * D, mesh.elements)
+        return b[:n] @ wrd.DistanceSolver(moved, 0.1, workers=1).solve([0]).polish().distance[:n]
+
+    fd = (value(1e-6) - value(-1e-6)) / 2e-6
+    assert abs((g.vertices * D).sum() - fd) <= 1e-5 * abs(fd), ((g.vertices * D).sum(), fd)

@@ -248,6 +248,6 @@ def vector_jacobian_product(solver, distance, source_sets, grad_u):
         reach = np.isfinite(solution.distance)
         top = np.max(distance[reach, j], initial=0.0)
         if top > 0:
-            change = max(change, float(np.abs(solution.distance - distance[:, j])[reach].max() / top))
+            change = max(change, float(np.abs(solution.distance[reach] - distance[reach, j]).max() / top))
     return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
                      newton_iterations=steps, seconds=time.perf_counter() - t0)
