@@ -203,9 +203,10 @@ def test_vjp_refusals():
     hessian = wrd.DistanceSolver(mesh, 0.05, regularizer="hessian", workers=1).solve([0])
     with pytest.raises(ValueError, match="expected the Dirichlet regularizer on a mesh to differentiate, got 'hessian'"):
         hessian.vjp(np.ones(n))
-    with wrd.tolerances.override(gradient_smoothing=0.0):
-        with pytest.raises(ValueError, match="expected tolerances.gradient_smoothing > 0, got 0.0"):
-            res.vjp(np.ones(n))
+    for bad in (0.0, -1e-6, float("inf"), float("nan")):
+        with wrd.tolerances.override(gradient_smoothing=bad):
+            with pytest.raises(ValueError, match="expected tolerances.gradient_smoothing as a finite number > 0, got"):
+                res.vjp(np.ones(n))
 
 
 def test_unreachable_component_moves_the_distance_only_through_the_total_area():

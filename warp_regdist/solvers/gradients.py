@@ -91,7 +91,7 @@ class SmoothedProblem:
 
     def __init__(self, ops, alpha, mu_hat, free):
         m = ops.element_volumes.size
-        self.ops, self.alpha, self.free = ops, float(alpha), free
+        self.ops, self.alpha = ops, float(alpha)
         self.mu = float(mu_hat) * ops.total_volume * ops.length_scale / m
         self.G = ops.grad[:, free].tocsr()
         self.m = m
@@ -208,8 +208,8 @@ def smoothed_solution(solver, distance, sources, column=0):
     """The :class:`SmoothedSolution` of ``solver``'s problem from vertex ``sources``, by Newton's method
     from ``distance`` (n,), a converged solve's (``column`` names the source set in errors)."""
     mu_hat = float(tolerances.gradient_smoothing)
-    if not mu_hat > 0.0:
-        raise ValueError(f"expected tolerances.gradient_smoothing > 0, got {mu_hat!r}")
+    if not 0.0 < mu_hat < np.inf:
+        raise ValueError(f"expected tolerances.gradient_smoothing as a finite number > 0, got {mu_hat!r}")
     sources, reachable = solver._source_mask(sources, column)
     free = reachable.copy()
     free[sources] = False
