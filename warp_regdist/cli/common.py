@@ -186,13 +186,15 @@ def summary(name: str, mesh, described: str, solver, result, written: list[str])
     vertices = "vertices"
     if mesh.element_weights is not None:
         vertices, elements = "points", "local triangles"
+    accuracy = (f"polished: moved {result.polish_change:.2%}" if "polish_change" in result
+                else f"estimated error {result.error_estimate:.2%}")
     return (
         f"{name}: {mesh.n_vertices} {vertices}, {mesh.n_elements} {elements}. Regularized geodesic "
         f"distance from {described}, {solver.regularizer.name} regularizer, alpha_hat {solver.alpha_hat:g} "
         f"(alpha {solver.alpha:.4g}), "
         f"on {solver.device} in {solver.dtype}: {result.iterations} ADMM iterations, {status} "
         f"(primal residual {result.primal_residual:.3g}, dual residual {result.dual_residual:.3g}, "
-        f"estimated error {result.error_estimate:.2%} of the largest distance), "
+        f"{accuracy} of the largest distance), "
         f"{result.seconds:.2f} s. Largest finite distance "
         f"{finite_max(result.distance):.4g}. Wrote {', '.join(written)}."
     )

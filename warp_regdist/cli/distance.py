@@ -85,6 +85,12 @@ def add_parser(sub) -> None:
         help="also write a picture of the distance (.png); on a tetrahedral mesh, its cut by the "
         "plane z = centre of the bounding box, with isolines",
     )
+    distance.add_argument(
+        "--polish",
+        action="store_true",
+        help="finish with Newton's method on the barrier-smoothed problem: within about 0.03%% of the exact "
+        "minimizer, about 5 times the solve's time (vertex sources, Dirichlet regularizer; docs/method.md section 10)",
+    )
     solver_options(distance)
 
 
@@ -128,6 +134,8 @@ def run(args: argparse.Namespace) -> None:
         described.append(("the closed curve through " if args.closed else "the curve through ") + text)
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
                            where=where, **_regularization(args, mesh))
+    if args.polish and result.converged:
+        result = result.polish()
     values = result.signed_distance if args.closed else result.distance
     if args.output.lower().endswith(".vtu"):
         save_vtu(args.output, mesh, {"signed_distance" if args.closed else "distance": values})
