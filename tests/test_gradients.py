@@ -229,3 +229,26 @@ def test_unreachable_component_moves_the_distance_only_through_the_total_area():
 
     fd = (value(1e-6) - value(-1e-6)) / 2e-6
     assert abs((g.vertices * D).sum() - fd) <= 1e-5 * abs(fd), ((g.vertices * D).sum(), fd)
+
+
+def test_a_stalled_final_level_falls_back_to_the_last_converged_one(monkeypatch):
+    """Where Newton's method stalls at the final mu, vjp differentiates the problem of the last level
+    that converged (mu_hat 1e-5 here), warns, and says so in ``smoothing``: the same gradients as
+    asking for that mu_hat."""
+    mesh = hole_mesh()
+    res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve([0])
+    b = np.random.default_rng(7).random(mesh.n_vertices)
+    center = SmoothedProblem._center
+
+    def stalling(self, v, mu, tight):
+        v, H, lu, count, converged = center(self, v, mu, tight)
+        return v, H, lu, count, converged and mu > 1.5 * self.mu   # the final level never converges
+
+    monkeypatch.setattr(SmoothedProblem, "_center", stalling)
+    with pytest.warns(wrd.ConvergenceWarning, match="solved at gradient_smoothing 1e-05, not 1e-06"):
+        fallback = res.vjp(b)
+    monkeypatch.undo()
+    with wrd.tolerances.override(gradient_smoothing=1e-5):
+        direct = res.vjp(b)
+    assert fallback.smoothing == pytest.approx(1e-5) and direct.smoothing == pytest.approx(1e-5)
+    np.testing.assert_allclose(fallback.vertices, direct.vertices, rtol=1e-6, atol=1e-8 * np.abs(direct.vertices).max())

@@ -28,6 +28,7 @@ along the central path's tangent between levels; H is factorized by scipy's Supe
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -36,6 +37,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 from scipy.optimize import OptimizeResult
 
+from ..errors import ConvergenceWarning
 from ..kernels import adjoint
 from ..tolerances import tolerances
 
@@ -64,6 +66,9 @@ class Gradients(OptimizeResult):
     smoothing_change : float
         max |u_mu - distance| / max distance over the columns: how far the smoothed minimizer is
         from the returned distance (the ADMM's error plus the smoothing's).
+    smoothing : float
+        The largest mu_hat used over the columns: ``tolerances.gradient_smoothing``, or a larger one
+        where Newton's method stalled at it (with a ConvergenceWarning).
     newton_iterations : int
         Newton steps summed over columns.
     seconds : float
@@ -133,41 +138,56 @@ class SmoothedProblem:
             roots = (-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)     # a > 0 > c: one positive root
         return float(min(1.0, np.min(roots[a > 0], initial=1.0)))
 
+    def _center(self, v, mu, tight):
+        """Newton's method on F at mu from v until the decrement grad F . H^-1 grad F <= 2 ``tight``
+        (or rounding stops it from halving below 1e-14 A L): (v, H, its factors, steps, converged)."""
+        last = np.inf
+        for count in range(1, _MAX_NEWTON + 1):
+            grad, H = self.gradient_hessian(v, mu)
+            lu = _Factor(H)
+            step = -lu.solve(grad)
+            decrement = -grad @ step
+            if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):
+                return v, H, lu, count, True
+            last = decrement
+            s = self.step_length(v, step)
+            if decrement > 1e-10 * self.scale:  # Armijo, where F's rounding does not hide the decrease
+                f0 = self.objective(v, mu)
+                while s > 1e-12 and self.objective(v + s * step, mu) > f0 - 0.25 * s * decrement:
+                    s *= 0.5
+            v = v + s * step
+        return v, H, lu, _MAX_NEWTON, False
+
     def minimize(self, v):
-        """u_mu on the free vertices from v (f,), H there and its LU factors, and the Newton steps."""
+        """u_mu on the free vertices from v (f,): (u, H there, its factors, Newton steps, the mu_hat
+        reached). Where Newton's method stalls at the final mu (an element's slack 1 - |g|^2 so small
+        that H's condition defeats the factorization), the last level that converges tightly is
+        returned instead, with its larger mu_hat."""
         top = self.max_gradient_squared(v)
         if top >= _INTERIOR ** 2:
             v = v * (_INTERIOR / np.sqrt(top))
-        steps = 0
+        steps, centred = 0, []
         levels = max(0, int(np.ceil(np.log(_START / self.mu_hat) / np.log(_RATIO))))
         for level in range(levels, -1, -1):
             mu = self.mu * _RATIO ** level
-            tight = 1e-20 * self.scale if level == 0 else _CENTERING * mu
-            last = np.inf
-            for _ in range(_MAX_NEWTON):
-                grad, H = self.gradient_hessian(v, mu)
-                lu = _Factor(H)
-                step = -lu.solve(grad)
-                decrement = -grad @ step
-                steps += 1
-                # converged, or stalled where rounding in grad F bounds the decrement
-                if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):
-                    break
-                last = decrement
-                s = self.step_length(v, step)
-                if decrement > 1e-10 * self.scale:  # Armijo, where F's rounding does not hide the decrease
-                    f0 = self.objective(v, mu)
-                    while s > 1e-12 and self.objective(v + s * step, mu) > f0 - 0.25 * s * decrement:
-                        s *= 0.5
-                v = v + s * step
-            else:
-                raise RuntimeError(f"expected the smoothed problem's Newton iteration to converge at mu = {mu:.3g}, "
-                                   f"got a Newton decrement {decrement:.3g} after {_MAX_NEWTON} steps")
-            if level > 0:  # predictor along the central path's tangent du/dmu = -H^-1 d(grad F)/dmu, keeping half the slack
-                g, t = self._g(v)
-                tangent = lu.solve(self.G.T @ ((2.0 / (1.0 - t))[:, None] * g).ravel()) * (mu - mu / _RATIO)
-                v = v + self.step_length(v, tangent, keep=0.5) * tangent
-        return v, H, lu, steps
+            v, H, lu, count, converged = self._center(v, mu, 1e-20 * self.scale if level == 0 else _CENTERING * mu)
+            steps += count
+            if not converged:
+                break
+            if level == 0:
+                return v, H, lu, steps, self.mu_hat
+            centred.append((level, v))
+            # predictor along the central path's tangent du/dmu = -H^-1 d(grad F)/dmu, keeping half the slack
+            g, t = self._g(v)
+            tangent = lu.solve(self.G.T @ ((2.0 / (1.0 - t))[:, None] * g).ravel()) * (mu - mu / _RATIO)
+            v = v + self.step_length(v, tangent, keep=0.5) * tangent
+        for level, start in reversed(centred):
+            v, H, lu, count, converged = self._center(start, self.mu * _RATIO ** level, 1e-20 * self.scale)
+            steps += count
+            if converged:
+                return v, H, lu, steps, self.mu_hat * _RATIO ** level
+        raise RuntimeError(f"expected the smoothed problem's Newton iteration to converge, got none of its levels "
+                           f"(mu_hat {_START:g} to {self.mu_hat:g}) within {_MAX_NEWTON} steps")
 
 
 def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
@@ -213,10 +233,14 @@ def smoothed_solution(solver, distance, sources, column=0):
     sources, reachable = solver._source_mask(sources, column)
     free = reachable.copy()
     free[sources] = False
-    v, H, lu, steps = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
+    v, H, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
+    if reached > mu_hat:
+        warnings.warn(f"the smoothed problem of source set {column} was solved at gradient_smoothing {reached:g}, not "
+                      f"{mu_hat:g}: at the smaller value an element's slack 1 - |grad u|^2 fell below what float64 "
+                      "resolves", ConvergenceWarning, stacklevel=3)
     u = np.where(reachable, 0.0, np.inf)
     u[free] = v
-    return SmoothedSolution(u, free, H, lu, steps, mu_hat)
+    return SmoothedSolution(u, free, H, lu, steps, reached)
 
 
 def adjoint_gradients(solver, solution, b):
@@ -236,7 +260,7 @@ def vector_jacobian_product(solver, distance, source_sets, grad_u):
     converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k)."""
     t0 = time.perf_counter()
     n, k = distance.shape
-    vertices, alpha_hat, steps, change = np.zeros((n, 3)), 0.0, 0, 0.0
+    vertices, alpha_hat, steps, change, smoothing = np.zeros((n, 3)), 0.0, 0, 0.0, 0.0
     smoothed = np.zeros((n, k))
     for j in range(k):
         solution = smoothed_solution(solver, distance[:, j], source_sets[j], j)
@@ -244,10 +268,11 @@ def vector_jacobian_product(solver, distance, source_sets, grad_u):
         vertices += dx
         alpha_hat += da
         steps += solution.steps
+        smoothing = max(smoothing, solution.mu_hat)
         smoothed[:, j] = solution.distance
         reach = np.isfinite(solution.distance)
         top = np.max(distance[reach, j], initial=0.0)
         if top > 0:
             change = max(change, float(np.abs(solution.distance[reach] - distance[reach, j]).max() / top))
     return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
-                     newton_iterations=steps, seconds=time.perf_counter() - t0)
+                     smoothing=smoothing, newton_iterations=steps, seconds=time.perf_counter() - t0)
