@@ -100,6 +100,16 @@ def test_distance_polish_is_within_the_exact_minimizer(tmp_path, capsys):
     assert np.abs(np.load(tmp_path / "u.npy") - exact).max() <= 2e-4 * exact.max()
 
 
+def test_polish_of_an_unconverged_solve_is_skipped_with_a_warning(meshes, tmp_path, capsys):
+    with wrd.tolerances.override(max_iterations=2):
+        code, out, err = run(capsys, "distance", meshes / "sphere.off", "--sources", "0", "--polish",
+                             "--output", tmp_path / "u.npy")
+    assert code == 0 and "NOT converged" in out and "estimated error" in out
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and lines[1] == ("warp-regdist: warning: --polish skipped: the ADMM did not converge, "
+                                            "the distance written is its iterate")
+
+
 def test_distance_csv_writes_inf_for_unreachable(meshes, tmp_path, capsys):
     csv = tmp_path / "u.csv"
     code, _, err = run(capsys, "distance", meshes / "pair.obj", "--sources", "3", "--output", csv, "--alpha-hat", "0.1")

@@ -241,8 +241,8 @@ def test_a_stalled_final_level_falls_back_to_the_last_converged_one(monkeypatch)
     center = SmoothedProblem._center
 
     def stalling(self, v, mu, tight):
-        v, H, lu, count, converged = center(self, v, mu, tight)
-        return v, H, lu, count, converged and mu > 1.5 * self.mu   # the final level never converges
+        v, lu, count, converged = center(self, v, mu, tight)
+        return v, lu, count, converged and mu > 1.5 * self.mu   # the final level never converges
 
     monkeypatch.setattr(SmoothedProblem, "_center", stalling)
     with pytest.warns(wrd.ConvergenceWarning, match="solved at gradient_smoothing 1e-05, not 1e-06"):

@@ -42,7 +42,9 @@ class _Distance(torch.autograd.Function):
     def forward(ctx, vertices, alpha_hat, faces, sources):
         mesh = Mesh(vertices.detach().cpu().numpy().astype(np.float64), faces)
         solver = DistanceSolver(mesh, float(alpha_hat), device=_warp_device(vertices), workers=1)
-        res = solver.solve(sources)
+        with warnings.catch_warnings():  # a solve that does not converge raises below instead
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            res = solver.solve(sources)
         if not res.converged:
             raise ValueError(f"expected a converged solve to differentiate, got one stopped after {res.iterations} "
                              "ADMM iterations")
@@ -87,6 +89,4 @@ def distance(vertices, faces, sources, alpha_hat=0.05):
         alpha_hat = torch.tensor(float(alpha_hat), dtype=vertices.dtype)
     elif alpha_hat.numel() != 1:
         raise ValueError(f"expected alpha_hat as a float or a one-element tensor, got shape {tuple(alpha_hat.shape)}")
-    with warnings.catch_warnings():  # a solve that does not converge raises in forward instead
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        return _Distance.apply(vertices, alpha_hat.reshape(()), np.asarray(faces), list(sources))
+    return _Distance.apply(vertices, alpha_hat.reshape(()), np.asarray(faces), list(sources))

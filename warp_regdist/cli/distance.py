@@ -6,7 +6,7 @@ import argparse
 import os
 
 from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, load, parse_sources, parse_surface_points, solve,
-                     solver_options, subcommand, summary, write_values)
+                     solver_options, subcommand, summary, warn, write_values)
 
 
 def add_parser(sub) -> None:
@@ -136,6 +136,8 @@ def run(args: argparse.Namespace) -> None:
                            where=where, **_regularization(args, mesh))
     if args.polish and result.converged:
         result = result.polish()
+    elif args.polish:
+        warn("--polish skipped: the ADMM did not converge, the distance written is its iterate")
     values = result.signed_distance if args.closed else result.distance
     if args.output.lower().endswith(".vtu"):
         save_vtu(args.output, mesh, {"signed_distance" if args.closed else "distance": values})

@@ -140,7 +140,7 @@ class SmoothedProblem:
 
     def _center(self, v, mu, tight):
         """Newton's method on F at mu from v until the decrement grad F . H^-1 grad F <= 2 ``tight``
-        (or rounding stops it from halving below 1e-14 A L): (v, H, its factors, steps, converged)."""
+        (or rounding stops it from halving below 1e-14 A L): (v, the factors of H there, steps, converged)."""
         last = np.inf
         for count in range(1, _MAX_NEWTON + 1):
             grad, H = self.gradient_hessian(v, mu)
@@ -148,7 +148,7 @@ class SmoothedProblem:
             step = -lu.solve(grad)
             decrement = -grad @ step
             if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):
-                return v, H, lu, count, True
+                return v, lu, count, True
             last = decrement
             s = self.step_length(v, step)
             if decrement > 1e-10 * self.scale:  # Armijo, where F's rounding does not hide the decrease
@@ -156,10 +156,10 @@ class SmoothedProblem:
                 while s > 1e-12 and self.objective(v + s * step, mu) > f0 - 0.25 * s * decrement:
                     s *= 0.5
             v = v + s * step
-        return v, H, lu, _MAX_NEWTON, False
+        return v, lu, _MAX_NEWTON, False
 
     def minimize(self, v):
-        """u_mu on the free vertices from v (f,): (u, H there, its factors, Newton steps, the mu_hat
+        """u_mu on the free vertices from v (f,): (u, the factors of H there, Newton steps, the mu_hat
         reached). Where Newton's method stalls at the final mu (an element's slack 1 - |g|^2 so small
         that H's condition defeats the factorization), the last level that converges tightly is
         returned instead, with its larger mu_hat."""
@@ -170,22 +170,22 @@ class SmoothedProblem:
         levels = max(0, int(np.ceil(np.log(_START / self.mu_hat) / np.log(_RATIO))))
         for level in range(levels, -1, -1):
             mu = self.mu * _RATIO ** level
-            v, H, lu, count, converged = self._center(v, mu, 1e-20 * self.scale if level == 0 else _CENTERING * mu)
+            v, lu, count, converged = self._center(v, mu, 1e-20 * self.scale if level == 0 else _CENTERING * mu)
             steps += count
             if not converged:
                 break
             if level == 0:
-                return v, H, lu, steps, self.mu_hat
+                return v, lu, steps, self.mu_hat
             centred.append((level, v))
             # predictor along the central path's tangent du/dmu = -H^-1 d(grad F)/dmu, keeping half the slack
             g, t = self._g(v)
             tangent = lu.solve(self.G.T @ ((2.0 / (1.0 - t))[:, None] * g).ravel()) * (mu - mu / _RATIO)
             v = v + self.step_length(v, tangent, keep=0.5) * tangent
         for level, start in reversed(centred):
-            v, H, lu, count, converged = self._center(start, self.mu * _RATIO ** level, 1e-20 * self.scale)
+            v, lu, count, converged = self._center(start, self.mu * _RATIO ** level, 1e-20 * self.scale)
             steps += count
             if converged:
-                return v, H, lu, steps, self.mu_hat * _RATIO ** level
+                return v, lu, steps, self.mu_hat * _RATIO ** level
         raise RuntimeError(f"expected the smoothed problem's Newton iteration to converge, got none of its levels "
                            f"(mu_hat {_START:g} to {self.mu_hat:g}) within {_MAX_NEWTON} steps")
 
@@ -215,13 +215,14 @@ def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
 
 class SmoothedSolution(NamedTuple):
     """u_mu of one column: ``distance`` (n,) (inf where no source reaches), ``free`` (n,) bool, the
-    Hessian ``H`` and its factors ``lu`` on the free vertices, Newton ``steps``, ``mu_hat``."""
+    factors ``lu`` of the Hessian on the free vertices, Newton ``steps``, the ``mu_hat`` reached and
+    ``change``, max |u_mu - u| / max u from the distance u it started from."""
     distance: np.ndarray
     free: np.ndarray
-    H: sp.csc_matrix
     lu: object
     steps: int
     mu_hat: float
+    change: float
 
 
 def smoothed_solution(solver, distance, sources, column=0):
@@ -233,14 +234,16 @@ def smoothed_solution(solver, distance, sources, column=0):
     sources, reachable = solver._source_mask(sources, column)
     free = reachable.copy()
     free[sources] = False
-    v, H, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
+    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
     if reached > mu_hat:
         warnings.warn(f"the smoothed problem of source set {column} was solved at gradient_smoothing {reached:g}, not "
                       f"{mu_hat:g}: at the smaller value an element's slack 1 - |grad u|^2 fell below what float64 "
                       "resolves", ConvergenceWarning, stacklevel=3)
     u = np.where(reachable, 0.0, np.inf)
     u[free] = v
-    return SmoothedSolution(u, free, H, lu, steps, reached)
+    top = np.max(distance[reachable], initial=0.0)
+    change = float(np.abs(u[reachable] - distance[reachable]).max() / top) if top > 0 else 0.0
+    return SmoothedSolution(u, free, lu, steps, reached, change)
 
 
 def adjoint_gradients(solver, solution, b):
@@ -269,10 +272,7 @@ def vector_jacobian_product(solver, distance, source_sets, grad_u):
         alpha_hat += da
         steps += solution.steps
         smoothing = max(smoothing, solution.mu_hat)
+        change = max(change, solution.change)
         smoothed[:, j] = solution.distance
-        reach = np.isfinite(solution.distance)
-        top = np.max(distance[reach, j], initial=0.0)
-        if top > 0:
-            change = max(change, float(np.abs(solution.distance[reach] - distance[reach, j]).max() / top))
     return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
                      smoothing=smoothing, newton_iterations=steps, seconds=time.perf_counter() - t0)

@@ -124,12 +124,9 @@ class DistanceResult(OptimizeResult):
         out = DistanceResult(self)
         out._attach(solver, source_sets)
         del out["error_estimate"]
-        polished, change = np.empty_like(distance), np.zeros(distance.shape[1])
-        for j in range(distance.shape[1]):
-            polished[:, j] = smoothed_solution(solver, distance[:, j], source_sets[j], j).distance
-            reach = np.isfinite(distance[:, j])
-            top = np.max(distance[reach, j], initial=0.0)
-            change[j] = np.abs(polished[reach, j] - distance[reach, j]).max(initial=0.0) / top if top > 0 else 0.0
+        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j) for j in range(distance.shape[1])]
+        polished = np.stack([x.distance for x in solutions], axis=1)
+        change = np.array([x.change for x in solutions])
         out["distance"], out["polish_change"] = (polished[:, 0], change[0].item()) if one else (polished, change)
         out["seconds"] = self.seconds + time.perf_counter() - t0
         return out
