@@ -3,7 +3,8 @@ and the stopping test, penalty and CG tolerances decided on the device (section 
 
 Shapes: u (n, nb); z, y (m, 3, nb); Dy, Dz, rhs (n, nb); rho (nb,); all of lane vector
 dtype V. ``basis`` (m, k) vec3 are the hat-function gradients, ``vol`` (m,) the element
-volumes a_e, k = d + 1 vertices per element.
+volumes a_e, k = d + 1 vertices per element; the change test's snapshot (u at the last test) and
+moved_last (its |u - snapshot| per vertex) are (n, nb).
 
 Device-resident loop state: ``step`` (2,) int32 holds the iteration IT and the CG iterations
 summed so far CG_TOTAL; ``lane`` (LANE_ROWS, nb) holds per lane (column) the rows below;
@@ -20,11 +21,11 @@ from .lanes import chunk_rows, group_blocks, lane_type
 
 IT, CG_TOTAL = 0, 1
 # Rows of ``lane``: the per-lane constants of the test (eps_abs sqrt(n_free) A, |mask A_V|), the
-# change test's maxima and flag, the last window's relative change and the change still to come
-# at its rate (0 before the first test), the done / newly-done flags, this check's residuals and
-# tolerances, and the values recorded when the lane's test first held.
-(EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, SETTLED, CHANGE, ESTIMATE, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI, EPS_DUAL,
- DUAL_SCALE, RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT, ESTIMATE_OUT) = range(20)
+# change test's maxima (the window's change, |u| and the vertices' extrapolated changes) and flag,
+# the change still to come, the done / newly-done flags, this check's residuals and tolerances,
+# and the values recorded when the lane's test first held.
+(EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, EXTRAPOLATED, SETTLED, ESTIMATE, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI,
+ EPS_DUAL, DUAL_SCALE, RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT, ESTIMATE_OUT) = range(20)
 LANE_ROWS = 20
 
 
@@ -140,10 +141,14 @@ def single_source_kernels(scalar, W, k):
                 rhs[i, b] = wp.cw_mul(mask[i, b], wp.cw_div(num, den))
 
     @wp.kernel(enable_backward=False, module=module)
-    def change_measure(u: wp.array2d(dtype=V), snapshot: wp.array2d(dtype=V), step: wp.array(dtype=wp.int32),
-                       window: int, lane: wp.array2d(dtype=V), chunk: int, group: int, n: int):
+    def change_measure(u: wp.array2d(dtype=V), snapshot: wp.array2d(dtype=V), moved_last: wp.array2d(dtype=V),
+                       step: wp.array(dtype=wp.int32), window: int, rate_cap: scalar, lane: wp.array2d(dtype=V),
+                       chunk: int, group: int, n: int):
         """Change test at iterations it > 0 with it % window == 0 (else nothing): per lane, the maxima
-        of |u - snapshot| and |u| into lane rows MOVED, UMAX (cleared by admm_check), then snapshot = u."""
+        of d_i = |u_i - snapshot_i|, of |u_i| and of the change still to come at vertex i,
+        d_i / (1 - q_i) with q_i = min(d_i / d_i_last, rate_cap) (rate_cap where d_i_last = 0, as at
+        the first test), into
+        lane rows MOVED, UMAX, EXTRAPOLATED (cleared by admm_check); then snapshot = u, moved_last = d."""
         it = step[IT]
         if it == 0 or it % window != 0:
             return
@@ -153,30 +158,39 @@ def single_source_kernels(scalar, W, k):
         for b in range(b0, b1):
             moved = V()
             top = V()
+            ahead = V()
             for i in range(i0, i1):
                 ui = u[i, b]
-                d = ui - snapshot[i, b]
+                si = snapshot[i, b]
+                last = moved_last[i, b]
+                d = V()
                 for l in range(W):
-                    moved[l] = wp.max(moved[l], wp.abs(d[l]))
+                    d[l] = wp.abs(ui[l] - si[l])
+                    q = rate_cap
+                    if d[l] < rate_cap * last[l]:
+                        q = d[l] / last[l]
+                    moved[l] = wp.max(moved[l], d[l])
                     top[l] = wp.max(top[l], wp.abs(ui[l]))
+                    ahead[l] = wp.max(ahead[l], d[l] / (one - q))
                 snapshot[i, b] = ui
+                moved_last[i, b] = d
             wp.atomic_max(lane, MOVED, b, moved)
             wp.atomic_max(lane, UMAX, b, top)
+            wp.atomic_max(lane, EXTRAPOLATED, b, ahead)
 
     @wp.kernel(enable_backward=False, module=module)
     def admm_check(acc: wp.array2d(dtype=V), lane: wp.array2d(dtype=V), rho: wp.array(dtype=V),
                    step: wp.array(dtype=wp.int32), rho_table: wp.array(dtype=scalar), window: int,
                    eps_pri_abs: scalar, eps_rel: scalar, eps_rel_dual: scalar, eps_change: scalar,
-                   cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar, scale: scalar,
+                   eps_estimate: scalar, cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar, scale: scalar,
                    length: scalar, atol2: wp.array(dtype=V)):
         """Top of iteration it, per lane of block b: the residuals of the last iterate (it > 0),
 
             r = |sqrt(M_F)(G u - z)|,  s = rho_old |D (z - z_old)|,
             eps_pri = eps_pri_abs + eps_rel max(|G u|, |z|),  dy = max(|D y|, |mask A_V|),
             eps_dual = eps_dual_abs + eps_rel_dual dy,
-            the change test every ``window`` iterations (settled: MOVED = 0 or MOVED <= eps_change UMAX),
-            with c = MOVED / UMAX and c_old the last test's CHANGE, ESTIMATE = c / (1 - c / c_old)
-            (the change still to come at the rate of the last two windows; inf while c does not shrink),
+            the change test every ``window`` iterations, with ESTIMATE = EXTRAPOLATED / UMAX (0 where
+            MOVED or UMAX = 0), settled: (MOVED = 0 or MOVED <= eps_change UMAX) and ESTIMATE <= eps_estimate,
         done once r <= eps_pri, s <= eps_dual and settled (NEWLY marks the first time, which
         records it, r, s, rho_old / length, ESTIMATE); then rho = rho_table[it % T] for this iteration
         and the u-step's CG tolerance per lane,
@@ -193,8 +207,8 @@ def single_source_kernels(scalar, W, k):
         load_norm = lane[LOAD_NORM, b]
         moved = lane[MOVED, b]
         top = lane[UMAX, b]
+        ahead = lane[EXTRAPOLATED, b]
         settled = lane[SETTLED, b]
-        change = lane[CHANGE, b]
         estimate = lane[ESTIMATE, b]
         done = lane[DONE, b]
         newly = V()
@@ -220,20 +234,15 @@ def single_source_kernels(scalar, W, k):
                 eps_dual[l] = eps_dual_abs[l] + eps_rel_dual * dy
                 dual_scale[l] = eps_dual_abs[l] + dy
                 if due:
+                    estimate[l] = zero
+                    if moved[l] > zero and top[l] > zero:
+                        estimate[l] = ahead[l] / top[l]
                     settled[l] = zero
-                    if moved[l] == zero or moved[l] <= eps_change * top[l]:
+                    if (moved[l] == zero or moved[l] <= eps_change * top[l]) and estimate[l] <= eps_estimate:
                         settled[l] = one
-                    c = zero
-                    if top[l] > zero:
-                        c = moved[l] / top[l]
-                    estimate[l] = scalar(wp.inf)
-                    if c == zero:
-                        estimate[l] = zero
-                    elif c < change[l]:
-                        estimate[l] = c / (one - c / change[l])
-                    change[l] = c
                     moved[l] = zero
                     top[l] = zero
+                    ahead[l] = zero
                 if done[l] == zero and r <= eps_pri[l] and s <= eps_dual[l] and settled[l] == one:
                     newly[l] = one
                     done[l] = one
@@ -253,8 +262,8 @@ def single_source_kernels(scalar, W, k):
             rv[l] = rho_new
         lane[MOVED, b] = moved
         lane[UMAX, b] = top
+        lane[EXTRAPOLATED, b] = ahead
         lane[SETTLED, b] = settled
-        lane[CHANGE, b] = change
         lane[ESTIMATE, b] = estimate
         lane[DONE, b] = done
         lane[NEWLY, b] = newly

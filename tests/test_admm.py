@@ -205,7 +205,8 @@ def test_all_pairs_swapped_schedule_and_rho0(bumpy42):
 
 def test_device_change_test_matches_the_host_rule():
     """The solver's change test runs on the device (kernels/single_source.py: change_measure, admm_check);
-    ChangeTest is its host statement. Four lanes: fast and slow decay, a jump, zeros."""
+    ChangeTest is its host statement (without the error estimate's test, eps_estimate = inf). Four lanes:
+    fast and slow decay, a jump, zeros."""
     import warp as wp
     from warp_regdist.kernels.single_source import LANE_ROWS, SETTLED, single_source_kernels
     from warp_regdist.kernels.lanes import row_dim
@@ -216,7 +217,7 @@ def test_device_change_test_matches_the_host_rule():
     rng = np.random.default_rng(3)
     base = rng.random((n, 4)) + 1.0
     base[:, 3] = 0.0
-    u, snapshot = wp.zeros((n, 1), dtype=V, device="cpu"), wp.zeros((n, 1), dtype=V, device="cpu")
+    u, snapshot, moved = (wp.zeros((n, 1), dtype=V, device="cpu") for _ in range(3))
     lane, acc = wp.zeros((LANE_ROWS, 1), dtype=V, device="cpu"), wp.zeros((5, 1), dtype=V, device="cpu")
     step, rho = wp.zeros(2, dtype=wp.int32, device="cpu"), wp.ones(1, dtype=V, device="cpu")
     table, atol2 = wp.ones(4, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=V, device="cpu")
@@ -229,9 +230,9 @@ def test_device_change_test_matches_the_host_rule():
         u.assign(values.reshape(n, 1, 4))
         step.assign(np.array([j * window, 0], dtype=np.int32))
         wp.launch(kern.change_measure, row_dim(n, (16, 1), 1), device="cpu",
-                  inputs=[u, snapshot, step, window, lane, 16, 1, n])
-        wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]
-                  + [wp.float64(x) for x in (0.0, 1.0, 1.0, eps, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0)] + [atol2])
+                  inputs=[u, snapshot, moved, step, window, wp.float64(0.95), lane, 16, 1, n])
+        wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]  # eps_estimate inf
+                  + [wp.float64(x) for x in (0.0, 1.0, 1.0, eps, np.inf, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0)] + [atol2])
         device_settled = lane.numpy()[SETTLED, 0] == 1.0
         np.testing.assert_array_equal(device_settled, host.update(values))
         seen.append(device_settled.copy())

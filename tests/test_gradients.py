@@ -130,7 +130,7 @@ def test_vjp_matches_central_differences_of_the_smoothed_problem(case):
 def test_smoothed_minimizer_is_near_the_conic_solvers():
     """u_mu at the default smoothing (vjp's smoothed_distance, polish's distance) against Clarabel's exact
     minimizer of the unsmoothed problem: measured 4.4e-5 of the max distance on the decimated spot,
-    where the ADMM's distance is 0.70% away; polish_change measures that 0.70%."""
+    where the ADMM's distance is 0.32% away (its iterates creep there); polish_change measures that."""
     mesh = spot955()
     V, F = mesh.vertices, mesh.elements
     exact = rs.solve_reference(V, F, [0], 0.05 * np.sqrt(rs.face_geometry(V, F)[0].sum()))
@@ -141,7 +141,7 @@ def test_smoothed_minimizer_is_near_the_conic_solvers():
     polished = res.polish()
     np.testing.assert_allclose(polished.distance, g.smoothed_distance, rtol=1e-10, atol=1e-12)
     admm_error = np.abs(res.distance - exact).max() / exact.max()
-    assert admm_error > 5e-3 and polished.polish_change == pytest.approx(admm_error, rel=0.05)
+    assert 1e-3 < admm_error <= 5e-3 and polished.polish_change == pytest.approx(admm_error, rel=0.05)
     assert "error_estimate" not in polished and "error_estimate" in res
     assert polished.vjp(np.ones(mesh.n_vertices)).smoothing_change <= 1e-6
 

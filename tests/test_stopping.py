@@ -72,11 +72,11 @@ def test_all_pairs_reads_its_settings_from_tolerances(cat80):
     assert res.iterations == 3 and res.change == np.inf
 
 
-def test_spot_single_source_in_100_iterations_within_half_a_percent(device):
+def test_spot_single_source_in_130_iterations_within_half_a_percent(device):
     mesh = wrd.load_mesh(os.path.join(os.path.dirname(wrd.__file__), "data", "spot_rr.off"))
     exact = np.loadtxt(DATA / "spot_rr__2272__a0.05_exact.txt")
     res = wrd.DistanceSolver(mesh, 0.05, device=device).solve([2272])
-    assert res.converged and res.iterations <= 100, res.iterations
+    assert res.converged and res.iterations <= 130, res.iterations
     assert _error(res.distance, exact) <= 5e-3
 
 
@@ -93,34 +93,53 @@ def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
     assert error / 20 <= res.error_estimate <= 5e-3, (error, res.error_estimate)
 
 
-def test_device_error_estimate_is_the_extrapolated_change_test():
-    """kernels/single_source.py admm_check's ESTIMATE against stopping.ExtrapolatedChangeTest on the same
-    window changes: a shrinking change (extrapolated), a growing one (inf), none (0), a first test (inf)."""
+def test_device_error_estimate_is_the_vertex_extrapolation():
+    """kernels/single_source.py change_measure and admm_check against stopping.vertex_extrapolation on the
+    same iterates: a first comparison (the cap), a vertex creeping behind a shrinking max change (its own rate
+    counts, not the max's), changes that grow (capped at ESTIMATE_RATE_CAP), u that stopped moving (0);
+    SETTLED needs both the window's change and the estimate."""
     import warp as wp
 
+    from warp_regdist.kernels.lanes import row_dim
+    from warp_regdist.kernels.single_source import ESTIMATE, LANE_ROWS, SETTLED, single_source_kernels
     from warp_regdist.solvers import stopping
-    from warp_regdist.kernels.single_source import CHANGE, ESTIMATE, LANE_ROWS, MOVED, UMAX, single_source_kernels
 
     kern = single_source_kernels(wp.float64, 4, 3)
-    before = np.array([4e-3, 1e-3, 2e-3, np.inf])       # the last test's change c_old (inf: none yet)
-    moved, top = np.array([3e-3, 2e-3, 0.0, 5e-3]), np.array([1.5, 1.0, 2.0, 1.0])
+    n = 30
+    rng = np.random.default_rng(5)
+    u = rng.random((n, 4)) + 1.0
+    snapshot = u + 1e-4 * rng.standard_normal((n, 4))
+    moved_last = 2e-4 * (rng.random((n, 4)) + 1.0)
+    moved_last[:, 1] *= 10.0                                  # changes that shrink fast ...
+    snapshot[7, 1], moved_last[7, 1] = u[7, 1] - 1.8e-3, 2e-3  # ... but one creeps: 0.9 of its last change
+    moved_last[:, 2] = 1e-5                                   # growing changes: the cap
+    snapshot[:, 3] = u[:, 3]                                  # no change
+    moved_last[:, 0] = 0.0                                    # the first comparison
     lane_rows = np.zeros((LANE_ROWS, 4))
-    lane_rows[CHANGE] = np.where(np.isinf(before), 0.0, before)  # the device's 'none yet' is 0
-    lane_rows[MOVED], lane_rows[UMAX] = moved, top
+    dev = [wp.array(a.reshape(n, 1, 4), dtype=kern.V, device="cpu") for a in (u, snapshot, moved_last)]
     lane = wp.array(lane_rows.reshape(LANE_ROWS, 1, 4), dtype=kern.V, device="cpu")
+    step = wp.array(np.array([20, 0], dtype=np.int32), dtype=wp.int32, device="cpu")
+    wp.launch(kern.change_measure, row_dim(n, (8, 1), 1), device="cpu",
+              inputs=[*dev, step, 10, wp.float64(stopping.ESTIMATE_RATE_CAP), lane, 8, 1, n])
     acc = wp.zeros((5, 1), dtype=kern.V, device="cpu")
     rho = wp.array(np.ones((1, 4)), dtype=kern.V, device="cpu")
-    step = wp.array(np.array([20, 0], dtype=np.int32), dtype=wp.int32, device="cpu")
     table, atol2 = wp.full(4, 1.0, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=kern.V, device="cpu")
+    eps_change, eps_estimate = 1e-3, 5e-3
     wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, 10]
-              + [wp.float64(x) for x in (1e-6, 1e-3, 0.5, 1e-3, 1e-3, 0.01, 0.3, 0.3, 1.0, 1.0)] + [atol2])
+              + [wp.float64(x) for x in (1e-6, 1e-3, 0.5, eps_change, eps_estimate, 1e-3, 0.01, 0.3, 0.3, 1.0, 1.0)]
+              + [atol2])
     out = lane.numpy().reshape(LANE_ROWS, 4)
-    host = stopping.ExtrapolatedChangeTest(10, 1e-3, 4)
-    host.window_change[:] = before
-    host._judge(moved, top[None, :])
-    np.testing.assert_allclose(out[ESTIMATE], host.change, rtol=1e-14)
-    np.testing.assert_allclose(out[ESTIMATE, 0], 2e-3 / (1 - 0.5), rtol=1e-14)
-    np.testing.assert_array_equal(out[CHANGE], moved / top)
+    estimate, d = stopping.vertex_extrapolation(u, snapshot, moved_last)
+    np.testing.assert_allclose(out[ESTIMATE], estimate, rtol=1e-14)
+    np.testing.assert_allclose(dev[2].numpy().reshape(n, 4), d, rtol=1e-14)   # moved_last = d for the next test
+    top, cap = np.abs(u).max(axis=0), stopping.ESTIMATE_RATE_CAP
+    assert estimate[0] == pytest.approx(d[:, 0].max() / (1 - cap) / top[0], rel=1e-9) and estimate[3] == 0.0
+    assert estimate[1] == pytest.approx(1.8e-3 / (1 - 0.9) / top[1], rel=1e-9)  # vertex 7's own rate
+    assert estimate[2] == pytest.approx(d[:, 2].max() / (1 - cap) / top[2], rel=1e-9)
+    window = d.max(axis=0) <= eps_change * top
+    settled = window & (estimate <= eps_estimate)
+    assert window.all() and settled.tolist() == [True, False, True, True]
+    np.testing.assert_array_equal(out[SETTLED] == 1.0, settled)
 
 
 def test_device_test_is_the_stopping_module_on_the_same_inputs():
@@ -149,7 +168,7 @@ def test_device_test_is_the_stopping_module_on_the_same_inputs():
     step = wp.array(np.array([3, 0], dtype=np.int32), dtype=wp.int32, device="cpu")
     table, atol2 = wp.full(4, rho_new, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=kern.V, device="cpu")
     wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]
-              + [wp.float64(x) for x in (eps_pri_abs, eps_rel, eps_rel_dual, 1e-3, cg_fraction, cg_primal, alpha,
+              + [wp.float64(x) for x in (eps_pri_abs, eps_rel, eps_rel_dual, 1e-3, 5e-3, cg_fraction, cg_primal, alpha,
                                          shift, scale, 1.0)] + [atol2])
     out = lane.numpy().reshape(LANE_ROWS, 4)
     r = np.sqrt(sums[R2])

@@ -45,12 +45,13 @@ def test_warm_start_from_another_source_reaches_the_new_minimizer(bumpy, device)
     assert _reference_error(V, F, [101], 0.05, warm.distance) <= 1e-3
 
 
-def test_warm_start_from_the_answer_stops_at_the_first_change_test(bumpy):
+def test_warm_start_from_the_answer_stops_within_two_change_tests(bumpy):
     solver = wrd.DistanceSolver(wrd.Mesh(*bumpy), 0.05)
     res = solver.solve([100])
     again = solver.solve([100], initial=res)
     assert res.iterations > 2 * wrd.tolerances.change_window
-    assert again.iterations == wrd.tolerances.change_window
+    # the first change test extrapolates at the rate cap (20 times the window's change), the second at each vertex's rate
+    assert again.iterations <= 2 * wrd.tolerances.change_window
     assert np.abs(again.distance - res.distance).max() <= 1e-3 * res.distance.max()
     assert res.duals.shape == (len(bumpy[1]), 3) and res.penalty == wrd.tolerances.rho_max
 
@@ -63,7 +64,7 @@ def test_solve_many_keeps_duals_per_column_and_takes_them_back(bumpy):
     single = solver.solve([100])
     np.testing.assert_allclose(res.duals[:, :, 1], single.duals, atol=1e-12)
     again = solver.solve_many(sets, initial=res)
-    assert (again.iterations == wrd.tolerances.change_window).all()
+    assert (again.iterations <= 2 * wrd.tolerances.change_window).all()
     # a distance alone (no duals) is a start too; the iterations then follow the fixed schedule
     assert solver.solve_many(sets, initial=wrd.DistanceResult(distance=res.distance)).converged.all()
 

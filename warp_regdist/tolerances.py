@@ -29,6 +29,11 @@ class Tolerances:
         the last comparison gave max |u_k - u_(k - change_window)| <= eps_change max |u_k|
         (math.inf: no change test). The residuals alone do not tell when the error is
         small; the change test bounds it (docs/architecture.md, benchmarks/stopping.py).
+    eps_estimate : float
+        The column also waits until its ``error_estimate`` is at most eps_estimate (a fraction
+        of max u; math.inf: no such test): the change still to come if every vertex kept
+        converging at its own rate of the last two comparisons, that rate capped at
+        ``stopping.ESTIMATE_RATE_CAP`` per window (docs/method.md section 8).
     max_iterations : int
         ADMM iteration cap.
     relaxation : float
@@ -90,6 +95,7 @@ class Tolerances:
     eps_rel: float = 1e-3
     eps_rel_dual: float = 0.5
     eps_change: float = 8e-4
+    eps_estimate: float = 5e-3
     change_window: int = 10
     max_iterations: int = 10_000
     relaxation: float = 1.7

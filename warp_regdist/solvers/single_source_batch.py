@@ -18,7 +18,7 @@ from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, E
                                      LANE_ROWS, LOAD_NORM, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
                                      single_source_kernels)
 from ..kernels.lanes import lane_kernels, row_dim, thread_span
-from .stopping import tolerance
+from .stopping import ESTIMATE_RATE_CAP, tolerance
 
 __all__ = ["Workspace", "DeviceRule", "device_rule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
 
@@ -35,7 +35,7 @@ each iteration's entry just before the replay that reads it)."""
 class Workspace:
     """The device arrays of a batch of nb blocks of W lanes: (n, nb) per vertex, (m, 3, nb) per
     element, (nb,) or (rows, nb) per lane; the device-resident stopping test keeps u at the last
-    change test (snapshot), the per-lane test state (lane), the iterates frozen when a lane's test
+    change test (snapshot) and its |u - snapshot| per vertex (moved_last), the per-lane test state (lane), the iterates frozen when a lane's test
     first held (u_out, y_out), the counters (step) and the penalty table (rho_table)."""
 
     width: int
@@ -49,6 +49,7 @@ class Workspace:
     rho: wp.array
     acc: wp.array
     snapshot: wp.array
+    moved_last: wp.array
     u_out: wp.array
     lane: wp.array
     step: wp.array
@@ -61,7 +62,8 @@ class Workspace:
 class DeviceRule:
     """The constants of the device's stopping test and CG tolerance rule (kernels/single_source.py
     ``admm_check``), in the order of its arguments: r <= eps_pri_abs + eps_rel max(|G u|, |z|),
-    s <= eps_dual_abs + eps_rel_dual max(|D y|, |A_V|), the change test eps_change, the CG
+    s <= eps_dual_abs + eps_rel_dual max(|D y|, |A_V|), the change test eps_change and the error
+    estimate's eps_estimate, the CG
     tolerance min(cg_fraction dual scale, eps_dual / 10, cg_primal r (alpha + rho)) / (shift + scale rho),
     the penalty reported in units of ``length``."""
 
@@ -69,6 +71,7 @@ class DeviceRule:
     eps_rel: float
     eps_rel_dual: float
     eps_change: float
+    eps_estimate: float
     cg_fraction: float
     cg_primal: float
     alpha: float
@@ -100,7 +103,7 @@ def device_rule(solver, tol, free):
     shift, scale = (solver.alpha, 1.0) if solver._scaled else (1.0, 0.0)
     rule = DeviceRule(
         eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
-        eps_change=factor * tol.eps_change, cg_fraction=factor * tol.cg_fraction,
+        eps_change=factor * tol.eps_change, eps_estimate=factor * tol.eps_estimate, cg_fraction=factor * tol.cg_fraction,
         # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
         # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
         cg_primal=tol.cg_primal_fraction * L ** (0.5 * solver.mesh.element_dim - 1.0),
@@ -244,7 +247,8 @@ class ColumnBatch:
         self.top = [
             rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws.mask,
                 ws.y, ws.z, ws.Dy, ws.Dz, ws.acc, *span, n),
-            rec(kern.change_measure, vert_dim, ws.u, ws.snapshot, ws.step, self.window, ws.lane, *span, n),
+            rec(kern.change_measure, vert_dim, ws.u, ws.snapshot, ws.moved_last, ws.step, self.window,
+                sc(ESTIMATE_RATE_CAP), ws.lane, *span, n),
             rec(kern.admm_check, blocks, ws.acc, ws.lane, ws.rho, ws.step, ws.rho_table, self.window,
                 *(sc(value) for value in dataclasses.astuple(rule)), pcg.atol2),
             rec(kern.freeze_lanes, vert_dim, ws.lane, ws.u, ws.u_out, *span, n)]
@@ -281,7 +285,7 @@ class ColumnBatch:
         """Move running columns out of the last blocks when they fit in fewer.
 
         ``slot_col`` (slots,) maps slot -> column (-1: free); it is permuted in place like the
-        device state (iterates, mask, D y, D z, change-test snapshot, per-lane test state, CG tolerances).
+        device state (iterates, mask, D y, D z, change-test snapshot and moves, per-lane test state, CG tolerances).
         """
         W, live = self.W, self.blocks * self.W
         running = np.flatnonzero(slot_col[:live] >= 0)
@@ -299,7 +303,7 @@ class ColumnBatch:
             nb = ws.u.shape[1]
             # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
             # and the CG tolerances that the last test set for the next u-step
-            for a in [getattr(ws, name) for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "lane")] + [ws.pcg.atol2]:
+            for a in [getattr(ws, name) for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "lane")] + [ws.pcg.atol2]:
                 a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
                 wp.launch(self.move, row_dim(a2.shape[0], span), device=dev,
                           inputs=[a2, s_arr, d_arr, src.size, span[0], a2.shape[0]])

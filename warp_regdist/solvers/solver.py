@@ -327,15 +327,14 @@ class DistanceSolver:
             self._workspaces = {}
             V = lane_type(self.scalar, W)
             n, m, dev = self.mesh.n_vertices, self.mesh.n_elements, self.device
+            vertexwise = [wp.zeros((n, nb), dtype=V, device=dev) for _ in range(8)]
             ws = Workspace(
-                width=W, u=wp.zeros((n, nb), dtype=V, device=dev), mask=wp.zeros((n, nb), dtype=V, device=dev),
-                Dy=wp.zeros((n, nb), dtype=V, device=dev), Dz=wp.zeros((n, nb), dtype=V, device=dev),
-                rhs=wp.zeros((n, nb), dtype=V, device=dev),
+                width=W, u=vertexwise[0], mask=vertexwise[1], Dy=vertexwise[2], Dz=vertexwise[3], rhs=vertexwise[4],
                 z=wp.zeros((m, 3, nb), dtype=V, device=dev), y=wp.zeros((m, 3, nb), dtype=V, device=dev),
                 rho=wp.zeros(nb, dtype=V, device=dev), acc=wp.zeros((5, nb), dtype=V, device=dev),
-                # the device-resident stopping test (kernels/single_source.py): u at the last change test, the
-                # per-lane state, the iterates frozen when a lane's test first held, counters, penalties
-                snapshot=wp.zeros((n, nb), dtype=V, device=dev), u_out=wp.zeros((n, nb), dtype=V, device=dev),
+                # the device-resident stopping test (kernels/single_source.py): u at the last change test and
+                # its move, the per-lane state, the iterates frozen when a lane's test first held, counters, penalties
+                snapshot=vertexwise[5], moved_last=vertexwise[6], u_out=vertexwise[7],
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
                 rho_table=wp.zeros(RHO_TABLE, dtype=self.scalar, device=dev),
                 pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
@@ -381,7 +380,7 @@ class DistanceSolver:
             free[:, j] = reach
             free[src, j] = 0.0
         ws.mask.assign(free.reshape(n, nb, W))
-        for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "step"):
+        for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "step"):
             getattr(ws, name).zero_()
         L = self.operators.length_scale
         if schedule is None:
