@@ -52,6 +52,22 @@ def test_defaults_within_one_percent_symmetric_by_construction(bumpy42, dtype, d
     assert np.all(res.residuals <= res.tolerance)
 
 
+def test_result_breaking_the_gradient_bound_is_not_converged(bumpy42, tmp_path):
+    """A result whose residual tests held but whose |grad U| exceeds tolerances.max_gradient is reported as not
+    converged, with the largest |grad U| in the warning; a converged checkpoint resumed is checked the same way."""
+    mesh, _ = bumpy42
+    ops = wrd.build_operators(mesh)
+    res = wrd.all_pairs(mesh, 0.1, checkpoint=tmp_path / "run.npz")
+    steepest = np.linalg.norm((ops.grad @ res.distance).reshape(mesh.n_elements, 3, -1), axis=1).max()
+    assert res.converged and 1.0 < steepest <= wrd.tolerances.max_gradient   # ADMM iterates meet |G U| <= 1 to about 1%
+    with wrd.tolerances.override(max_gradient=1.0):
+        with pytest.warns(wrd.ConvergenceWarning, match=rf"max \|grad U\| {steepest:.3g}, above tolerances\.max_gradient = 1\)"):
+            flagged = wrd.all_pairs(mesh, 0.1)
+        assert not flagged.converged and np.array_equal(flagged.distance, res.distance)
+        with pytest.warns(wrd.ConvergenceWarning, match="although its residual tests held: not converged"):
+            assert not wrd.all_pairs(mesh, 0.1, resume=tmp_path / "run.npz").converged
+
+
 def test_large_alpha_without_active_constraints_converges(bumpy42, device):
     # alpha_hat 2: |grad| < 1 almost everywhere, so Y (and the dual residual's scale |D Y|)
     # nearly vanish; measured against |D Y| alone the dual test never held (3000 iterations)

@@ -85,10 +85,11 @@ class Tolerances:
         unsmoothed problem's; smaller values come closer, but the smoothed map then bends within
         steps of about mu_hat in the positions, and below about 1e-8 rounding limits its accuracy.
     max_gradient : float
-        A result whose gradient exceeds this on some element is reported as not converged,
-        with a warning (the constraint is |G u| <= 1, which converged results meet to about
-        1%). It catches iterations that blew up on needle-like elements while their
-        relative stopping test held.
+        A result (single sources, and all pairs column by column) whose gradient exceeds this
+        on some element is reported as not converged, with a warning (the constraint is
+        |G u| <= 1, which converged results meet to about 1%). It catches single-source
+        iterations that blew up on needle-like elements, and all-pairs runs whose consensus
+        had not settled near the diagonal, while their relative stopping tests held.
     """
 
     eps_abs: float = 0.0
