@@ -146,9 +146,9 @@ def single_source_kernels(scalar, W, k):
                        chunk: int, group: int, n: int):
         """Change test at iterations it > 0 with it % window == 0 (else nothing): per lane, the maxima
         of d_i = |u_i - snapshot_i|, of |u_i| and of the change still to come at vertex i,
-        d_i / (1 - q_i) with q_i = min(d_i / d_i_last, rate_cap) (rate_cap where d_i_last = 0, as at
-        the first test), into
-        lane rows MOVED, UMAX, EXTRAPOLATED (cleared by admm_check); then snapshot = u, moved_last = d."""
+        d_i / (1 - q_i) with q_i = min(d_i / d_i_last, rate_cap) (rate_cap where d_i_last = 0, as
+        at the first test), into lane rows MOVED, UMAX, EXTRAPOLATED (cleared by admm_check);
+        then snapshot = u, moved_last = d."""
         it = step[IT]
         if it == 0 or it % window != 0:
             return
@@ -182,15 +182,16 @@ def single_source_kernels(scalar, W, k):
     def admm_check(acc: wp.array2d(dtype=V), lane: wp.array2d(dtype=V), rho: wp.array(dtype=V),
                    step: wp.array(dtype=wp.int32), rho_table: wp.array(dtype=scalar), window: int,
                    eps_pri_abs: scalar, eps_rel: scalar, eps_rel_dual: scalar, eps_change: scalar,
-                   eps_estimate: scalar, cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar, scale: scalar,
-                   length: scalar, atol2: wp.array(dtype=V)):
+                   eps_estimate: scalar, cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar,
+                   scale: scalar, length: scalar, atol2: wp.array(dtype=V)):
         """Top of iteration it, per lane of block b: the residuals of the last iterate (it > 0),
 
             r = |sqrt(M_F)(G u - z)|,  s = rho_old |D (z - z_old)|,
             eps_pri = eps_pri_abs + eps_rel max(|G u|, |z|),  dy = max(|D y|, |mask A_V|),
             eps_dual = eps_dual_abs + eps_rel_dual dy,
             the change test every ``window`` iterations, with ESTIMATE = EXTRAPOLATED / UMAX (0 where
-            MOVED or UMAX = 0), settled: (MOVED = 0 or MOVED <= eps_change UMAX) and ESTIMATE <= eps_estimate,
+            MOVED or UMAX = 0), settled: (MOVED = 0 or MOVED <= eps_change UMAX) and
+            ESTIMATE <= eps_estimate,
         done once r <= eps_pri, s <= eps_dual and settled (NEWLY marks the first time, which
         records it, r, s, rho_old / length, ESTIMATE); then rho = rho_table[it % T] for this iteration
         and the u-step's CG tolerance per lane,

@@ -35,8 +35,9 @@ each iteration's entry just before the replay that reads it)."""
 class Workspace:
     """The device arrays of a batch of nb blocks of W lanes: (n, nb) per vertex, (m, 3, nb) per
     element, (nb,) or (rows, nb) per lane; the device-resident stopping test keeps u at the last
-    change test (snapshot) and its |u - snapshot| per vertex (moved_last), the per-lane test state (lane), the iterates frozen when a lane's test
-    first held (u_out, y_out), the counters (step) and the penalty table (rho_table)."""
+    change test (snapshot) and its |u - snapshot| per vertex (moved_last), the per-lane test state
+    (lane), the iterates frozen when a lane's test first held (u_out, y_out), the counters (step)
+    and the penalty table (rho_table)."""
 
     width: int
     u: wp.array
@@ -103,7 +104,8 @@ def device_rule(solver, tol, free):
     shift, scale = (solver.alpha, 1.0) if solver._scaled else (1.0, 0.0)
     rule = DeviceRule(
         eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
-        eps_change=factor * tol.eps_change, eps_estimate=factor * tol.eps_estimate, cg_fraction=factor * tol.cg_fraction,
+        eps_change=factor * tol.eps_change, eps_estimate=factor * tol.eps_estimate,
+        cg_fraction=factor * tol.cg_fraction,
         # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
         # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
         cg_primal=tol.cg_primal_fraction * L ** (0.5 * solver.mesh.element_dim - 1.0),
@@ -303,7 +305,8 @@ class ColumnBatch:
             nb = ws.u.shape[1]
             # Dy and Dz too: the u-step reads this iteration's, the next divergence step the old D z
             # and the CG tolerances that the last test set for the next u-step
-            for a in [getattr(ws, name) for name in ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "lane")] + [ws.pcg.atol2]:
+            moved = ("u", "mask", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "lane")
+            for a in [getattr(ws, name) for name in moved] + [ws.pcg.atol2]:
                 a2 = a.reshape((1, nb)) if a.ndim == 1 else a if a.ndim == 2 else a.reshape((a.shape[0] * a.shape[1], nb))
                 wp.launch(self.move, row_dim(a2.shape[0], span), device=dev,
                           inputs=[a2, s_arr, d_arr, src.size, span[0], a2.shape[0]])
