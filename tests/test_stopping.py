@@ -89,8 +89,9 @@ def test_single_source_default_stop_on_decimated_cat(cat80, alpha_hat, device):
     assert res.converged
     error = _error(res.distance, exact)
     assert error <= 5e-3
-    # measured: error / estimate 1.8, 2.4 and 10.7 at alpha_hat 0, 0.03, 0.3
-    assert error / 20 <= res.error_estimate <= 5e-3, (error, res.error_estimate)
+    # measured: error / estimate 0.15, 0.08 and 0.91 at alpha_hat 0, 0.03, 0.3 (0.06-3.1 on the 51 cases of
+    # benchmarks/stopping.py)
+    assert error / 4 <= res.error_estimate <= 5e-3, (error, res.error_estimate)
 
 
 def test_device_error_estimate_is_the_vertex_extrapolation():
