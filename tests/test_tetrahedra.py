@@ -64,6 +64,11 @@ def test_tet_operators_match_independent_assembly():
     assert np.allclose(ops.stiffness.toarray(), W, rtol=0, atol=1e-11 * np.abs(W).max())
     c = np.array([0.7, -0.2, 1.3])
     assert np.abs((ops.grad @ (V @ c)).reshape(-1, 3) - c).max() < 1e-12  # linear functions exact
+    # max |G u| per column, in blocks of 2 columns: |c| and 2 |c| exactly; +inf entries count as 0, NaN stays NaN
+    columns = np.stack([V @ c, 2 * V @ c, np.full(len(V), np.inf), np.where(np.arange(len(V)) == 0, np.nan, 0.0)], axis=1)
+    steepest = ops.max_gradient(columns, block=2)
+    np.testing.assert_allclose(steepest[:3], [np.linalg.norm(c), 2 * np.linalg.norm(c), 0.0], rtol=1e-12)
+    assert np.isnan(steepest[3]) and ops.max_gradient(V @ c).shape == (1,)
     # the alpha scaling for volumes: alpha = alpha_hat * V^(1/3)
     solver = wrd.DistanceSolver(wrd.Mesh(V, T), alpha_hat=0.07, device="cpu")
     assert solver.alpha == pytest.approx(0.07 * vol.sum() ** (1.0 / 3.0), rel=1e-12)

@@ -58,6 +58,15 @@ class Operators:
         d = self.basis.shape[1] - 1
         return float(self.total_volume ** (1.0 / d))
 
+    def max_gradient(self, u, block=256):
+        """(k,) max over elements of |G u| per column of ``u`` (n, k) (or (n,): k = 1), ``block`` columns at
+        a time (G u is (3m, k)); +inf entries (unreachable vertices) count as 0, NaN gives NaN."""
+        u = np.where(np.isposinf(u), 0.0, u).reshape(u.shape[0], -1)
+        m = self.grad.shape[0] // 3
+        with np.errstate(over="ignore", invalid="ignore"):
+            return np.concatenate([np.sqrt(np.square((self.grad @ u[:, j:j + block]).reshape(m, 3, -1)).sum(axis=1))
+                                   .max(axis=0, initial=0.0) for j in range(0, u.shape[1], block)])
+
 
 def element_gradients(vertices, elements):
     """Hat-function gradients and volumes of simplices.

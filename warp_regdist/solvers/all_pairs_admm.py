@@ -310,12 +310,10 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                         checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial)
 
 
-def _flag_steep(res, ops, limit, block=256):
-    """``res`` with converged False and a ConvergenceWarning where max |G U| over elements and columns (in
-    column blocks: G U is (3m, n)) exceeds ``limit`` or is NaN."""
-    U, m = res.distance, ops.grad.shape[0] // 3
-    steepest = np.max([np.sqrt(np.square((ops.grad @ U[:, j:j + block]).reshape(m, 3, -1)).sum(axis=1)).max()
-                       for j in range(0, U.shape[1], block)])
+def _flag_steep(res, ops, limit):
+    """``res`` with converged False and a ConvergenceWarning where max |G U| over elements and columns
+    exceeds ``limit`` or is NaN."""
+    steepest = np.max(ops.max_gradient(res.distance))
     if res.converged and not steepest <= limit:
         res.converged = False
         warnings.warn(f"all-pairs ADMM returned distances that break |grad U| <= 1 (max |grad U| {steepest:.3g}, "

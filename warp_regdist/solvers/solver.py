@@ -275,7 +275,7 @@ class DistanceSolver:
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
         res._attach(self, source_sets)
-        gradient = self._max_gradient(res.distance)
+        gradient = self.operators.max_gradient(res.distance)
         steep = ~(gradient <= tolerances.max_gradient)  # also NaN
         res.converged &= ~steep
         if steep.any():
@@ -286,14 +286,6 @@ class DistanceSolver:
             warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return res
-
-    def _max_gradient(self, distance):
-        """(k,) max over elements of |G u| for each column of ``distance`` (n, k); +inf entries
-        (unreachable components) count as 0, NaN gives NaN."""
-        u = np.where(np.isposinf(distance), 0.0, distance)
-        with np.errstate(over="ignore", invalid="ignore"):
-            g = (self.operators.grad @ u).reshape(self.mesh.n_elements, 3, -1)
-            return np.sqrt(np.square(g).sum(axis=1)).max(axis=0, initial=0.0)
 
     # ------------------------------------------------------------------ ADMM
     def _worker_pool(self, count):
