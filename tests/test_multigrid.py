@@ -10,7 +10,7 @@ import warp as wp
 import meshes
 import warp_regdist as wrd
 from warp_regdist.kernels.lanes import SCALARS, lane_type, lane_width
-from warp_regdist.solvers.multigrid import MultigridPreconditioner, smoothed_aggregation
+from warp_regdist.solvers.multigrid import MultigridPreconditioner, prolongator, smoothed_aggregation
 from warp_regdist.solvers.pcg import BatchedPCG
 
 
@@ -24,6 +24,16 @@ def spot_stiffness():
 @pytest.fixture(scope="module")
 def spot_hierarchy(spot_stiffness):
     return smoothed_aggregation(spot_stiffness)
+
+
+def test_prolongator_reproduces_the_constants(spot_stiffness):
+    """P = (I - w D^-1 A) T maps sqrt(aggregate sizes) to the ones vector (A 1 = 0), aggregates ~1/10."""
+    P, w, dinv = prolongator(spot_stiffness.tocsr(), 0.5, np.random.default_rng(0))
+    n, nc = P.shape
+    assert 4 < n / nc < 30
+    c = spla.lsqr(P, np.ones(n), atol=1e-14, btol=1e-14, iter_lim=5000)[0]
+    assert np.abs(P @ c - 1.0).max() < 1e-8
+    assert w > 0 and np.allclose(dinv, 1 / spot_stiffness.diagonal())
 
 
 def _lanes(values, dtype, device):

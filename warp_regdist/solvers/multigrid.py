@@ -43,7 +43,7 @@ from ..kernels.lanes import lane_type, row_dim, thread_span
 from ..kernels.multigrid import multigrid_kernels
 from .csr import csr_arrays
 
-__all__ = ["Hierarchy", "MultigridPreconditioner", "smoothed_aggregation"]
+__all__ = ["Hierarchy", "MultigridPreconditioner", "prolongator", "smoothed_aggregation"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,6 +173,38 @@ def _pseudo_inverse(A):
     return 0.5 * (inv + inv.T)
 
 
+def prolongator(A, theta, rng):
+    """One coarsening step of smoothed aggregation: P = (I - w D^-1 A) T, w = (4/3) / rho(D^-1 A).
+
+    Parameters
+    ----------
+    A : (n, n) scipy.sparse.csr_matrix
+        Symmetric, non-negative diagonal; rows with a zero diagonal join no aggregate.
+    theta : float
+        Strength threshold (see :func:`smoothed_aggregation`).
+    rng : numpy.random.Generator
+        Order of the aggregation's root choice.
+
+    Returns
+    -------
+    (P, w, dinv) : ((n, nc) csr_matrix, float, (n,) ndarray), or None when no coarser level
+        exists (nc = 0 or nc = n). T has one column per aggregate, 1 / sqrt(size) on its
+        rows, so P reproduces the constants of A's kernel: P (sqrt(size)) = 1 on active rows.
+    """
+    diag = A.diagonal()
+    active = diag > 1e-14 * max(diag.max(initial=0.0), 1e-300)
+    dinv = np.where(active, 1.0 / np.where(active, diag, 1.0), 0.0)
+    agg = _aggregate(_strength(A, theta, active), active, rng)
+    nc = agg.max() + 1
+    if nc >= A.shape[0] or nc == 0:
+        return None
+    size = np.bincount(agg[active], minlength=nc)
+    rows = np.flatnonzero(active)
+    T = sp.csr_matrix((1.0 / np.sqrt(size[agg[rows]]), (rows, agg[rows])), shape=(A.shape[0], nc))
+    w = (4.0 / 3.0) / _spectral_radius(A, dinv)
+    return (T - w * (sp.diags(dinv) @ (A @ T))).tocsr(), w, dinv
+
+
 def smoothed_aggregation(matrix, theta=0.5, coarse_size=256, max_levels=20, seed=0):
     """Build the V-cycle :class:`Hierarchy` of a symmetric positive semi-definite matrix.
 
@@ -200,19 +232,11 @@ def smoothed_aggregation(matrix, theta=0.5, coarse_size=256, max_levels=20, seed
     rng = np.random.default_rng(seed)
     smoothers, restrictions = [], []
     while A.shape[0] > coarse_size and len(smoothers) + 1 < max_levels:
-        diag = A.diagonal()
-        active = diag > 1e-14 * max(diag.max(initial=0.0), 1e-300)
-        dinv = np.where(active, 1.0 / np.where(active, diag, 1.0), 0.0)
-        agg = _aggregate(_strength(A, theta, active), active, rng)
-        nc = agg.max() + 1
-        if nc >= A.shape[0] or nc == 0:
+        level = prolongator(A, theta, rng)
+        if level is None:
             break
-        size = np.bincount(agg[active], minlength=nc)
-        rows = np.flatnonzero(active)
-        T = sp.csr_matrix((1.0 / np.sqrt(size[agg[rows]]), (rows, agg[rows])), shape=(A.shape[0], nc))
-        w = (4.0 / 3.0) / _spectral_radius(A, dinv)
+        P, w, dinv = level
         Dinv = sp.diags(dinv)
-        P = (T - w * (Dinv @ (A @ T))).tocsr()
         smoothers.append((2 * w * Dinv - w * w * (Dinv @ A @ Dinv)).tocsr())
         PtA = P.T @ A
         restrictions.append((P.T - w * (PtA @ Dinv)).tocsr())
