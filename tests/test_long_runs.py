@@ -187,6 +187,24 @@ def test_checkpoint_of_another_problem_is_refused(sphere642, tmp_path):
         wrd.all_pairs(sphere642, 0.03, device="cpu", resume=tmp_path / "junk.npz")
 
 
+def test_a_checkpoint_is_checked_from_its_headers_and_read_one_array_at_a_time(sphere642, tmp_path):
+    """Reading and checking a checkpoint loads none of its state arrays (tracemalloc sees numpy's
+    allocations), so a resumed run holds one state array more than a fresh one, not a second state."""
+    import tracemalloc
+
+    path = tmp_path / "run.npz"
+    _quiet_all_pairs(sphere642, 0.03, max_iterations=3, device="cpu", checkpoint=path)
+    fingerprint = all_pairs_checkpoint.problem_fingerprint(sphere642, 0.03, "float64", wrd.tolerances.pairs_rho2_factor)
+    tracemalloc.start()
+    try:
+        with all_pairs_checkpoint.read_checkpoint(path, fingerprint, sphere642.n_elements) as saved:
+            read_peak = tracemalloc.get_traced_memory()[1]
+            one = saved["U"].nbytes
+    finally:
+        tracemalloc.stop()
+    assert one >= 8 * 642 * 642 and read_peak < one / 4
+
+
 def test_checkpoint_without_room_is_refused_before_allocating(sphere642, tmp_path, monkeypatch):
     def no_state(*args, **kwargs):
         raise AssertionError("allocated before the disk check")

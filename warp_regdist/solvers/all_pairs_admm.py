@@ -272,9 +272,11 @@ class AllPairsSolver:
         with contextlib.ExitStack() as stack:
             if checkpoint is not None:
                 stack.enter_context(FileLock(checkpoint, "the checkpoint"))
-            saved = read_checkpoint(resume, fingerprint, mesh.n_elements) if resume is not None else None
-            start = (read_checkpoint(initial, fingerprint, mesh.n_elements, ("mesh_sha256", "n_vertices", "dtype"),
-                                     "initial") if initial is not None else None)
+            saved = (stack.enter_context(read_checkpoint(resume, fingerprint, mesh.n_elements))
+                     if resume is not None else None)
+            start = (stack.enter_context(read_checkpoint(initial, fingerprint, mesh.n_elements,
+                                                         ("mesh_sha256", "n_vertices", "dtype"), "initial"))
+                     if initial is not None else None)
             memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device)
             if saved is not None and "final" in saved:
                 return _flag_steep(final_result(saved, memory, checkpoint), self.operators, tol.max_gradient)

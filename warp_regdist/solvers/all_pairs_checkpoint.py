@@ -1,5 +1,7 @@
 """All-pairs checkpoints: their size, the room for them, the fingerprint of the problem they hold,
-and reading one back as data (never unpickled), checked against the problem before use."""
+and reading one back as data (never unpickled), checked against the problem before use and
+read one array at a time (a resumed run needs one state array more than a fresh one, not a
+second copy of the state)."""
 
 from __future__ import annotations
 
@@ -48,27 +50,47 @@ def problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor):
 
 
 def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
-    """The arrays of checkpoint ``path`` (the ``role`` argument) after checking that it agrees with
-    ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem."""
+    """Checkpoint ``path`` (the ``role`` argument) as an open :class:`numpy.lib.npyio.NpzFile`, each
+    array read when accessed, after checking from the arrays' headers that it agrees with
+    ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem.
+    The caller closes it (it is a context manager)."""
     path = os.fspath(path)
+    saved = None
     try:
-        with np.load(path, allow_pickle=False) as f:
-            saved = {k: f[k] for k in f.files}
+        saved = np.load(path, allow_pickle=False)
         theirs = json.loads(str(saved["fingerprint"]))
         if not isinstance(theirs, dict):
             raise ValueError(f"a fingerprint {theirs!r}")
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError) as exc:
+        headers = {name: _array_header(saved, name) for name in saved.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, AttributeError) as exc:
+        if saved is not None:
+            saved.close()
         raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
                          f"({type(exc).__name__}: {exc})") from None
-    differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
-    if differ:
-        shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
-        got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
-        what = "this problem" if keys is None else "this mesh and dtype"
-        raise ValueError(f"expected a checkpoint of {what} ({shown}), got one of another problem ({got}) "
-                         f"in {path!r}")
-    check_checkpoint_arrays(saved, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path, role)
+    try:
+        differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
+        if differ:
+            shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
+            got = ", ".join(f"{k} {theirs.get(k)!r}" for k in differ)
+            what = "this problem" if keys is None else "this mesh and dtype"
+            raise ValueError(f"expected a checkpoint of {what} ({shown}), got one of another problem ({got}) "
+                             f"in {path!r}")
+        first = int(saved["iteration"]) if headers.get("iteration", (None,))[0] == () else 0
+        check_checkpoint_arrays(headers, first, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path,
+                                role)
+    except BaseException:
+        saved.close()
+        raise
     return saved
+
+
+def _array_header(npz, name):
+    """(shape, dtype) of array ``name`` of an open .npz, from its .npy header (the data is not read)."""
+    with npz.zip.open(name + ".npy") as f:
+        version = np.lib.format.read_magic(f)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(f)
+    return shape, dtype
 
 
 def checkpoint_shapes(n, m, dtype):
@@ -83,30 +105,30 @@ def checkpoint_shapes(n, m, dtype):
     return shapes
 
 
-def check_checkpoint_arrays(saved, n, m, dtype, path, role):
-    """ValueError unless ``saved`` holds the arrays a run of this problem needs, of their shapes and dtypes."""
+def check_checkpoint_arrays(headers, first, n, m, dtype, path, role):
+    """ValueError unless ``headers`` ({name: (shape, dtype)} of a checkpoint's arrays, its iteration
+    ``first``) are those a run of this problem needs."""
     shapes = checkpoint_shapes(n, m, dtype)
     if role == "initial":
         required = ("X", "U", "H", "v", "rho_v")
     else:
         required = ("X", "U", "H", "v", "iteration", "rho_v", "cg_iterations", "seconds", "history")
-        required += ("residuals", "tolerance") if "final" in saved else ("DZ", "DZ_acc", "DY_acc")
-        if "iteration" in saved and saved["iteration"].ndim == 0 and saved["iteration"] > 0:
+        required += ("residuals", "tolerance") if "final" in headers else ("DZ", "DZ_acc", "DY_acc")
+        if first > 0:
             required += ("penalties", "cols", "pairs")
-    missing = [name for name in required if name not in saved]
+    missing = [name for name in required if name not in headers]
     if missing:
         raise ValueError(f"expected {role} as a complete all-pairs checkpoint, got {path!r} without "
                          f"{', '.join(missing)}")
-    for name, a in saved.items():
+    for name, (shape, kind) in headers.items():
         if name == "history":
-            ok = a.ndim == 2 and a.shape[1] == 7 and a.dtype == np.float64
+            ok = len(shape) == 2 and shape[1] == 7 and kind == np.float64
             expected = "(k, 7) float64"
         elif name in shapes:
-            shape, kind = shapes[name]
-            ok = a.shape == shape and a.dtype == np.dtype(kind)
-            expected = f"{shape} {kind}"
+            ok = shape == shapes[name][0] and kind == np.dtype(shapes[name][1])
+            expected = f"{shapes[name][0]} {shapes[name][1]}"
         else:
             continue
         if not ok:
             raise ValueError(f"expected {role} checkpoint array {name!r} of shape and dtype {expected}, got "
-                             f"{a.shape} {a.dtype} in {path!r}")
+                             f"{shape} {kind} in {path!r}")
