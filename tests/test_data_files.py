@@ -79,6 +79,11 @@ def test_pickled_checkpoint_is_refused_without_running_it(sphere, checkpoint, tm
     saved["U"] = np.array([{"not": "data"}], dtype=object)
     bad = tmp_path / "pickled.npz"
     np.savez(bad, **saved)
+    with pytest.raises(ValueError, match=r"expected resume checkpoint array 'U' of shape and dtype \(162, \d+, \d+\) "
+                                         r"float64, got \(1,\) object in '.*pickled\.npz'"):
+        _resume(sphere, bad)                       # refused from its header, never unpickled
+    saved["fingerprint"] = np.array([{"not": "data"}], dtype=object)
+    np.savez(bad, **saved)
     with pytest.raises(ValueError, match=r"expected resume as an all-pairs checkpoint \(\.npz\), got '.*pickled\.npz' "
                                          r"\(ValueError: Object arrays cannot be loaded when allow_pickle=False\)"):
         _resume(sphere, bad)
