@@ -10,9 +10,10 @@ diagonal (U symmetric, zero diagonal):
     g_ej = (G U[:, j])_e,  mu = mu_hat A L / m,
 
 the single-source polish's barrier (solvers/gradients.py) weighted by each column's vertex area A_j,
-along the levels mu_hat of --levels (Newton steps that keep a tenth of every slack, Armijo
-backtracking, a level centred when the decrement is below 20 mu A / n, the last one below 1e-8 of
-that), each Newton system solved by scipy's sparse LU. Prints and writes the error after the ADMM and
+from the ADMM's U scaled so that max |g| = --interior, along the levels mu_hat of --levels (Newton
+steps that keep a tenth of every slack, Armijo backtracking, every level centred until the decrement
+is below 1e-6 mu A / n: a looser centring stops at points 0.05-0.3% apart on the same level), each
+Newton system solved by scipy's sparse LU. Prints and writes the error after the ADMM and
 after each level against the exact minimizer cached by benchmarks/stopping.py --pairs, with the
 Newton steps so far: benchmarks/results/all_pairs_polish.csv.
 """
@@ -84,16 +85,14 @@ class BarrierPolish:
     def matrix(self, x):
         return (self.S @ x).reshape(self.n, self.n, order="F")
 
-    def run(self, U, levels, exact, max_newton=40):
-        """[(mu_hat, Newton steps so far, error (%))] along ``levels`` from the ADMM's U."""
-        x = U[self.iu, self.ju].copy()
-        top = self._g(x)[1].max()
-        if top >= 0.998:
-            x *= 0.999 / np.sqrt(top)
+    def run(self, U, levels, exact, interior, max_newton=40):
+        """[(mu_hat, Newton steps so far, error (%))] along ``levels`` from the ADMM's U scaled to
+        max |g| = ``interior``."""
+        x = U[self.iu, self.ju] * (interior / np.sqrt(self._g(U[self.iu, self.ju])[1].max()))
         steps, out = 0, []
         for mu_hat in levels:
             mu = mu_hat * self.mu_unit
-            tight = (1e-8 if mu_hat == levels[-1] else 20.0) * mu_hat * self.weight_unit
+            tight = 1e-6 * mu_hat * self.weight_unit
             for _ in range(max_newton):
                 grad, H = self.gradient_hessian(x, mu)
                 dx = -spla.spsolve(H, grad)
@@ -128,7 +127,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cache", required=True, help="folder of the exact minimizers (benchmarks/stopping.py --pairs)")
     parser.add_argument("--admm", type=int, nargs="+", default=[150, 200], help="ADMM iterations before the polish")
-    parser.add_argument("--levels", type=float, nargs="+", default=[1e-5, 1e-6, 1e-7], help="mu_hat of the levels")
+    parser.add_argument("--levels", type=float, nargs="+", default=[1e-3, 1e-4, 1e-5, 1e-6], help="mu_hat of the levels")
+    parser.add_argument("--interior", type=float, default=0.95, help="max |g| of the polish's starting point")
     parser.add_argument("--meshes", nargs="+", default=None, help='"name n" of the pairs set (default: all cached)')
     parser.add_argument("--output", default=os.path.join(HERE, "results", "all_pairs_polish.csv"))
     args = parser.parse_args()
@@ -146,7 +146,7 @@ def main():
         for iterations in args.admm:
             U = admm_iterate(admm, iterations, 8.0 * admm.L)
             t0 = time.perf_counter()
-            levels = polish.run(U, args.levels, exact)
+            levels = polish.run(U, args.levels, exact, args.interior)
             row = dict(mesh=name, n=mesh.n_vertices, admm_iterations=iterations,
                        admm_error_pct=stopping.error_pct(U, exact))
             for mu_hat, steps, error in levels:
