@@ -74,6 +74,13 @@ def test_truncated_checkpoint_is_refused(sphere, checkpoint, tmp_path, size):
         _resume(sphere, cut)
 
 
+def test_npy_file_is_refused_as_a_checkpoint(sphere, tmp_path):
+    np.save(tmp_path / "u.npy", np.zeros(3))
+    with pytest.raises(ValueError, match=r"expected resume as an all-pairs checkpoint \(\.npz\), got '.*u\.npy' "
+                                         r"\(ValueError: a ndarray, not an \.npz archive\)"):
+        _resume(sphere, tmp_path / "u.npy")
+
+
 def test_pickled_checkpoint_is_refused_without_running_it(sphere, checkpoint, tmp_path):
     saved = dict(np.load(checkpoint))
     saved["U"] = np.array([{"not": "data"}], dtype=object)

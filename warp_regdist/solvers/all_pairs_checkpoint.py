@@ -5,6 +5,7 @@ second copy of the state)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -55,19 +56,19 @@ def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
     ``fingerprint`` on ``keys`` (None: all, the same problem) and holds the arrays of that problem.
     The caller closes it (it is a context manager)."""
     path = os.fspath(path)
-    saved = None
-    try:
-        saved = np.load(path, allow_pickle=False)
-        theirs = json.loads(str(saved["fingerprint"]))
-        if not isinstance(theirs, dict):
-            raise ValueError(f"a fingerprint {theirs!r}")
-        headers = {name: _array_header(saved, name) for name in saved.files}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, AttributeError) as exc:
-        if saved is not None:
-            saved.close()
-        raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
-                         f"({type(exc).__name__}: {exc})") from None
-    try:
+    with contextlib.ExitStack() as stack:
+        try:
+            saved = np.load(path, allow_pickle=False)
+            if not isinstance(saved, np.lib.npyio.NpzFile):
+                raise ValueError(f"a {type(saved).__name__}, not an .npz archive")
+            stack.callback(saved.close)
+            theirs = json.loads(str(saved["fingerprint"]))
+            if not isinstance(theirs, dict):
+                raise ValueError(f"a fingerprint {theirs!r}")
+            headers = {name: _array_header(saved, name) for name in saved.files}
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError) as exc:
+            raise ValueError(f"expected {role} as an all-pairs checkpoint (.npz), got {path!r} "
+                             f"({type(exc).__name__}: {exc})") from None
         differ = [k for k in (fingerprint if keys is None else keys) if theirs.get(k) != fingerprint[k]]
         if differ:
             shown = ", ".join(f"{k} {fingerprint[k]!r}" for k in differ)
@@ -78,9 +79,7 @@ def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
         first = int(saved["iteration"]) if headers.get("iteration", (None,))[0] == () else 0
         check_checkpoint_arrays(headers, first, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path,
                                 role)
-    except BaseException:
-        saved.close()
-        raise
+        stack.pop_all()
     return saved
 
 
