@@ -19,6 +19,7 @@ Newton steps so far: benchmarks/results/all_pairs_polish.csv.
 """
 
 import argparse
+import itertools
 import os
 import sys
 import time
@@ -32,6 +33,7 @@ sys.path.insert(0, HERE)
 
 import stopping  # noqa: E402
 import symmetric_all_pairs  # noqa: E402
+import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 
 
@@ -108,21 +110,6 @@ class BarrierPolish:
         return out
 
 
-def admm_iterate(admm, iterations, rho, relaxation=1.7):
-    """U after ``iterations`` of the exact-step symmetric ADMM at fixed rho."""
-    n, m, AV = len(admm.AV), admm.m, admm.AV
-    Z, Y = np.zeros((3 * m, n)), np.zeros((3 * m, n))
-    for _ in range(iterations):
-        B = admm.D @ (rho * Z - Y) * AV[None, :]
-        U = admm.u_step(np.outer(AV, AV) + 0.5 * (B + B.T), admm.alpha + rho / 2)
-        h = relaxation * (admm.G @ U) + (1 - relaxation) * Z
-        T = (Y / rho + h).reshape(m, 3, n)
-        Znew = (T / np.maximum(1.0, np.linalg.norm(T, axis=1, keepdims=True))).reshape(3 * m, n)
-        Y += rho * (h - Znew)
-        Z = Znew
-    return U
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cache", required=True, help="folder of the exact minimizers (benchmarks/stopping.py --pairs)")
@@ -133,8 +120,6 @@ def main():
     parser.add_argument("--output", default=os.path.join(HERE, "results", "all_pairs_polish.csv"))
     args = parser.parse_args()
     rows = []
-    import warp_regdist as wrd
-
     for name, mesh in stopping.pairs_set():
         if args.meshes and f"{name} {mesh.n_vertices}" not in args.meshes:
             continue
@@ -144,7 +129,7 @@ def main():
         admm = symmetric_all_pairs.SymmetricADMM(mesh, 0.03)
         polish = BarrierPolish(admm, wrd.build_operators(mesh).element_volumes)
         for iterations in args.admm:
-            U = admm_iterate(admm, iterations, 8.0 * admm.L)
+            U = next(itertools.islice(admm.iterates(8.0 * admm.L), iterations - 1, None))[0]
             t0 = time.perf_counter()
             levels = polish.run(U, args.levels, exact, args.interior)
             row = dict(mesh=name, n=mesh.n_vertices, admm_iterations=iterations,

@@ -27,6 +27,7 @@ and 0.002 (its ADMM iterations, its one-sided PCG iterations summed over them, i
 """
 
 import argparse
+import itertools
 import os
 import sys
 import time
@@ -169,13 +170,13 @@ class SymmetricADMM:
         U = s[:, None] * X * s[None, :] + sol[n]
         return 0.5 * (U + U.T)
 
-    def run(self, exact, rho, max_iterations, relaxation=1.7, inner_tol=None):
-        """{level: (iterations, PCG iterations)} until U is within each of LEVELS of max |exact|; the
-        U-step exact (inner_tol None) or by :func:`masked_pcg` with the tensor multigrid."""
+    def iterates(self, rho, relaxation=1.7, inner_tol=None):
+        """Yield (U, PCG iterations so far) after each iteration at fixed ``rho``; the U-step exact
+        (inner_tol None) or by :func:`masked_pcg` with the tensor multigrid."""
         n, m, AV = len(self.AV), self.m, self.AV
         Z, Y, U = np.zeros((3 * m, n)), np.zeros((3 * m, n)), np.zeros((n, n))
-        reached, top, pcg, scale = {}, np.abs(exact).max(), 0, self.alpha + rho / 2
-        for k in range(1, max_iterations + 1):
+        pcg, scale = 0, self.alpha + rho / 2
+        while True:
             B = self.D @ (rho * Z - Y) * AV[None, :]
             R = np.outer(AV, AV) + 0.5 * (B + B.T)
             if inner_tol is None:
@@ -189,6 +190,12 @@ class SymmetricADMM:
             Znew = (T / np.maximum(1.0, np.linalg.norm(T, axis=1, keepdims=True))).reshape(3 * m, n)
             Y += rho * (h - Znew)
             Z = Znew
+            yield U, pcg
+
+    def run(self, exact, rho, max_iterations, inner_tol=None):
+        """{level: (iterations, PCG iterations)} until U is within each of LEVELS of max |exact|."""
+        reached, top = {}, np.abs(exact).max()
+        for k, (U, pcg) in enumerate(itertools.islice(self.iterates(rho, inner_tol=inner_tol), max_iterations), 1):
             error = np.abs(U - exact).max() / top
             reached.update({level: (k, pcg) for level in LEVELS if level not in reached and error <= level})
             if len(reached) == len(LEVELS):
