@@ -171,8 +171,9 @@ class SymmetricADMM:
         return 0.5 * (U + U.T)
 
     def iterates(self, rho, relaxation=1.7, inner_tol=None):
-        """Yield (U, PCG iterations so far) after each iteration at fixed ``rho``; the U-step exact
-        (inner_tol None) or by :func:`masked_pcg` with the tensor multigrid."""
+        """Yield (U, PCG iterations so far, Y) after each iteration at fixed ``rho``; the U-step exact
+        (inner_tol None) or by :func:`masked_pcg` with the tensor multigrid. Y (3 m, n), the
+        multipliers of Z = G U, is updated in place by the next iteration."""
         n, m, AV = len(self.AV), self.m, self.AV
         Z, Y, U = np.zeros((3 * m, n)), np.zeros((3 * m, n)), np.zeros((n, n))
         pcg, scale = 0, self.alpha + rho / 2
@@ -190,12 +191,12 @@ class SymmetricADMM:
             Znew = (T / np.maximum(1.0, np.linalg.norm(T, axis=1, keepdims=True))).reshape(3 * m, n)
             Y += rho * (h - Znew)
             Z = Znew
-            yield U, pcg
+            yield U, pcg, Y
 
     def run(self, exact, rho, max_iterations, inner_tol=None):
         """{level: (iterations, PCG iterations)} until U is within each of LEVELS of max |exact|."""
         reached, top = {}, np.abs(exact).max()
-        for k, (U, pcg) in enumerate(itertools.islice(self.iterates(rho, inner_tol=inner_tol), max_iterations), 1):
+        for k, (U, pcg, _) in enumerate(itertools.islice(self.iterates(rho, inner_tol=inner_tol), max_iterations), 1):
             error = np.abs(U - exact).max() / top
             reached.update({level: (k, pcg) for level in LEVELS if level not in reached and error <= level})
             if len(reached) == len(LEVELS):
