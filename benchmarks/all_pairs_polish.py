@@ -87,27 +87,45 @@ class BarrierPolish:
     def matrix(self, x):
         return (self.S @ x).reshape(self.n, self.n, order="F")
 
-    def run(self, U, levels, exact, interior, max_newton=40):
-        """[(mu_hat, Newton steps so far, error (%))] along ``levels`` from the ADMM's U scaled to
-        max |g| = ``interior``."""
+    def steps(self, U, levels, interior, solve=spla.spsolve, max_newton=40):
+        """Yield (mu_hat, x, level done) after every Newton system solved along ``levels``, from the
+        ADMM's U scaled to max |g| = ``interior``; solve(H, rhs) gives each Newton direction."""
         x = U[self.iu, self.ju] * (interior / np.sqrt(self._g(U[self.iu, self.ju])[1].max()))
-        steps, out = 0, []
         for mu_hat in levels:
             mu = mu_hat * self.mu_unit
             tight = 1e-6 * mu_hat * self.weight_unit
-            for _ in range(max_newton):
+            for k in range(max_newton):
                 grad, H = self.gradient_hessian(x, mu)
-                dx = -spla.spsolve(H, grad)
+                dx = solve(H, -grad)
                 decrement = -grad @ dx
-                steps += 1
                 if decrement <= tight:
+                    yield mu_hat, x, True
                     break
                 s, f0 = self.step_length(x, dx), self.objective(x, mu)
                 while s > 1e-12 and not self.objective(x + s * dx, mu) <= f0 - 0.25 * s * decrement:
                     s *= 0.5
                 x = x + s * dx
-            out.append((mu_hat, steps, stopping.error_pct(self.matrix(x), exact)))
+                yield mu_hat, x, k == max_newton - 1
+
+    def run(self, U, levels, exact, interior):
+        """[(mu_hat, Newton steps so far, error (%))] at the end of each of ``levels``."""
+        out = []
+        for steps, (mu_hat, x, done) in enumerate(self.steps(U, levels, interior), 1):
+            if done:
+                out.append((mu_hat, steps, stopping.error_pct(self.matrix(x), exact)))
         return out
+
+
+def problems(cache, meshes=None):
+    """Yield (name, mesh, exact minimizer, SymmetricADMM, BarrierPolish) of the pairs set's meshes at
+    alpha_hat 0.03 whose exact minimizer is in ``cache``, of those named "name n" in ``meshes`` (all: None)."""
+    for name, mesh in stopping.pairs_set():
+        if meshes and f"{name} {mesh.n_vertices}" not in meshes:
+            continue
+        exact = stopping.cached(cache, f"pairs {name} {mesh.n_vertices} 0.03", None)
+        if exact is not None:
+            admm = symmetric_all_pairs.SymmetricADMM(mesh, 0.03)
+            yield name, mesh, exact, admm, BarrierPolish(admm, wrd.build_operators(mesh).element_volumes)
 
 
 def main():
@@ -120,14 +138,7 @@ def main():
     parser.add_argument("--output", default=os.path.join(HERE, "results", "all_pairs_polish.csv"))
     args = parser.parse_args()
     rows = []
-    for name, mesh in stopping.pairs_set():
-        if args.meshes and f"{name} {mesh.n_vertices}" not in args.meshes:
-            continue
-        exact = stopping.cached(args.cache, f"pairs {name} {mesh.n_vertices} 0.03", None)
-        if exact is None:
-            continue
-        admm = symmetric_all_pairs.SymmetricADMM(mesh, 0.03)
-        polish = BarrierPolish(admm, wrd.build_operators(mesh).element_volumes)
+    for name, mesh, exact, admm, polish in problems(args.cache, args.meshes):
         for iterations in args.admm:
             U = next(itertools.islice(admm.iterates(8.0 * admm.L), iterations - 1, None))[0]
             t0 = time.perf_counter()
