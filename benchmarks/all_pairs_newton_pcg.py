@@ -39,9 +39,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 import stopping  # noqa: E402
-import symmetric_all_pairs  # noqa: E402
-import warp_regdist as wrd  # noqa: E402
-from all_pairs_polish import BarrierPolish  # noqa: E402
+from all_pairs_polish import problems  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 
 LEVELS = (0.005, 0.002, 0.0005, 0.0001)
@@ -206,14 +204,7 @@ def main():
     parser.add_argument("--output", default=os.path.join(HERE, "results", "all_pairs_newton_pcg.csv"))
     args = parser.parse_args()
     rows = []
-    for name, mesh in stopping.pairs_set():
-        if args.meshes and f"{name} {mesh.n_vertices}" not in args.meshes:
-            continue
-        exact = stopping.cached(args.cache, f"pairs {name} {mesh.n_vertices} 0.03", None)
-        if exact is None:
-            continue
-        admm = symmetric_all_pairs.SymmetricADMM(mesh, 0.03)
-        problem = BarrierPolish(admm, wrd.build_operators(mesh).element_volumes)
+    for name, mesh, exact, admm, problem in problems(args.cache, args.meshes):
         U, _, Y = next(itertools.islice(admm.iterates(8.0 * admm.L), args.admm - 1, None))
         U, Y = U.copy(), Y.copy()
         builders = preconditioners(problem, admm.multigrid)
