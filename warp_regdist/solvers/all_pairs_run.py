@@ -75,6 +75,7 @@ class PairsRun:
         st = self.state
         for name in STATE_ROWS + ("v",):
             st.put(name, saved[name])
+        st.clear_diagonal("X")  # the X-step keeps X[j, j] where it is: at 0, whatever the file holds
         st.rho_v = float(saved["rho_v"])
         self.start = int(saved["iteration"])
         if self.start > 0:
@@ -96,6 +97,7 @@ class PairsRun:
         st = self.state
         for name in ("X", "U", "H", "v"):
             st.put(name, saved[name])
+        st.clear_diagonal("X")  # as in restore
         st.rho_v = float(saved["rho_v"])
         st.divergences_from_element_state()
         self.change_test.reset(st.view("U").reshape(-1, 1))

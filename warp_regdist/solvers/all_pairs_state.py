@@ -66,8 +66,8 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
     """Bytes needed by :func:`all_pairs` for n vertices and m triangles.
 
     Device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
-    the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4), the multigrid levels
-    (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
+    the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4) and mask (1), the multigrid
+    levels (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
     host the float64 (n, n) result, and in the solver's precision the U of the last change test
     and the change test's difference (and, on a GPU, the copy of one state array at a time to
     the host; checkpoints write the state from views, not copies, on the CPU).
@@ -75,7 +75,7 @@ def memory_estimate(n, m, dtype="float64", device="cpu"):
     W = lane_width(SCALARS[dtype], n)
     cols = -(-n // W) * W
     size = np.dtype(dtype).itemsize
-    device_bytes = size * cols * (12 * n + 3 * m)
+    device_bytes = size * cols * (13 * n + 3 * m)
     host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
     return device_bytes, host_bytes
 
@@ -134,6 +134,18 @@ STATE_ROWS = ("X", "U", "H", "DZ", "DZ_acc", "DY_acc")
 """The (n, n) state arrays; with ``v`` (3m, n) they are what a checkpoint holds."""
 
 
+def _free_entries(n, b0, b1, W, dtype):
+    """The X-step's mask of column blocks [b0, b1) as (n, b1 - b0, W) lanes: 1 on the entries the PCG
+    solves for, 0 on padding columns (j >= n) and on each column's own vertex (X[j, j] = 0, as
+    U[j, j] is: column j's X-step is the Dirichlet problem at vertex j)."""
+    c0, c1 = b0 * W, min(b1 * W, n)
+    mask = np.zeros((n, (b1 - b0) * W), dtype=dtype)
+    mask[:, :max(0, c1 - c0)] = 1
+    own = np.arange(c0, c1)
+    mask[own, own - c0] = 0
+    return mask.reshape(n, b1 - b0, W)
+
+
 class _Part:
     """Part t of one iteration: column blocks [b_t, b_t+1) of the vertex, X- (its own PCG) and
     element steps, and consensus tile rows [i_t, i_t+1). Built in the calling process (t = 0)
@@ -162,12 +174,9 @@ class _Part:
             volumes=wp.array(setup.volumes, dtype=sc, device=dev),
             vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
             lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
-            # one row of column masks (1 on real columns, 0 on padding), broadcast to n rows by a zero stride
-            mask_row=wp.array((area > 0).astype(np.float64)[b0 * W:b1 * W].reshape(1, b1 - b0, W), dtype=V,
-                              device=dev))
+            mask=wp.array(_free_entries(n, b0, b1, W, wp.dtype_to_numpy(sc)), dtype=V, device=dev))
         a = self._arrays
-        self.mask = wp.array(ptr=a["mask_row"].ptr, shape=(n, b1 - b0), strides=(0, a["mask_row"].strides[1]),
-                             dtype=V, device=dev)
+        self.mask = a["mask"]
         self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
         # each process launches from one thread, so on the CPU the CG loop can be one captured graph
         self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
@@ -307,6 +316,14 @@ class SymmetricADMM:
 
     def put(self, name, values):
         self.arrays[name].assign(values)
+
+    def clear_diagonal(self, name):
+        """State array ``name``[j, j] = 0 for every vertex j (in place on the CPU)."""
+        j = np.arange(self.n)
+        values = self.view(name)
+        values[j, j // self.setup.W, j % self.setup.W] = 0
+        if not self.arrays[name].device.is_cpu:
+            self.put(name, values)
 
 
 def check_memory(n, m, dtype, dev):
