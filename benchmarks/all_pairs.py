@@ -20,7 +20,7 @@ so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
 
 With ``--accuracy``: ``AllPairsSolver.solve(accuracy=e)`` for e in 0.02, 0.01, 0.005, 0.002 on the
 irregular meshes whose exact minimizers are known (the two in tests/data, and those of
-benchmarks/stopping.py's all-pairs set found in ``--cache``): iterations, time, time per iteration,
+benchmarks/stopping.py's all-pairs sets found in ``--cache``, ``--pairs --larger``): iterations, time, time per iteration,
 error and the result's error_estimate in % of the max distance, one process. Writes
 benchmarks/results/all_pairs_accuracy.csv.
 """
@@ -71,7 +71,7 @@ def exact_cases(cache):
         import stopping
 
         for alpha_hat in (0.03, 0.1):
-            for name, mesh in stopping.pairs_set():
+            for name, mesh in stopping.pairs_set() + stopping.larger_pairs_set():
                 exact = stopping.cached(cache, f"pairs {name} {mesh.n_vertices} {alpha_hat}", None)
                 if exact is not None and mesh.n_vertices != 80:
                     cases.append((name, mesh, alpha_hat, exact))

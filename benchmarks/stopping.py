@@ -3,6 +3,7 @@
     python benchmarks/stopping.py                 # single sources and all pairs
     python benchmarks/stopping.py --single        # single sources only (minutes)
     python benchmarks/stopping.py --pairs --cache /tmp/stopping   # all pairs (Clarabel: minutes per case)
+    python benchmarks/stopping.py --pairs --larger --alpha-hats 0.03 --cache /tmp/stopping   # and 250 vertices
 
 Measurement set: quadric-decimated cat_rr, spot_rr and spot_rr_holes (fast-simplification,
 the decimator trimesh's ``simplify_quadric_decimation`` uses: obtuse and sliver triangles,
@@ -73,6 +74,12 @@ def pairs_set():
     """The measurement set and smaller decimations (60-80 vertices) for all pairs."""
     return measurement_set() + [("cat_rr decimated", decimated("cat_rr", 60)), ("cat_rr decimated", decimated("cat_rr", 80)),
                                 ("spot_rr_holes decimated", decimated("spot_rr_holes", 80))]
+
+
+def larger_pairs_set():
+    """cat_rr decimated to 250 vertices: an all-pairs case whose exact minimizer takes Clarabel about
+    25 minutes and 2 GB (``--larger``)."""
+    return [("cat_rr decimated", decimated("cat_rr", 250))]
 
 
 def cached(cache, key, compute):
@@ -154,13 +161,13 @@ def exact_pairs(apr, V, F, alpha):
         return apr.solve_all_pairs_reference(V, F, alpha, symmetric=True, gap_tol=1e-8, feas_tol=1e-7)
 
 
-def run_pairs(cache, alpha_hats, cached_only):
+def run_pairs(cache, alpha_hats, cached_only, larger=False):
     import all_pairs_reference as apr
     import reference_solver as rs
 
     rows = []
     for alpha_hat in alpha_hats:
-        for name, mesh in pairs_set():
+        for name, mesh in pairs_set() + (larger_pairs_set() if larger else []):
             V, F = mesh.vertices, mesh.elements
             t0 = time.perf_counter()
             exact = cached(cache, f"pairs {name} {mesh.n_vertices} {alpha_hat}", None if cached_only else (
@@ -189,6 +196,7 @@ def main():
                         help="folder of the exact minimizers")
     parser.add_argument("--cached-only", action="store_true",
                         help="all pairs: skip the cases whose exact minimizer is not in --cache yet")
+    parser.add_argument("--larger", action="store_true", help="all pairs: also larger_pairs_set()")
     parser.add_argument("--output", default=RESULTS)
     args = parser.parse_args()
     both = not (args.single or args.pairs)
@@ -196,7 +204,7 @@ def main():
     if args.single or both:
         rows += run_single(args.cache)
     if args.pairs or both:
-        rows += run_pairs(args.cache, args.alpha_hats, args.cached_only)
+        rows += run_pairs(args.cache, args.alpha_hats, args.cached_only, args.larger)
     write_csv(rows, args.output)
     print(markdown_table(rows))
 
