@@ -26,6 +26,7 @@ the PCG iterations summed over those steps: benchmarks/results/all_pairs_newton_
 """
 
 import argparse
+import importlib.util
 import itertools
 import os
 import sys
@@ -126,8 +127,16 @@ def pcg_drops(H, b, precondition, max_iterations):
     return [reached.get(d) for d in DROPS]
 
 
+def amg(H):
+    """pyamg's smoothed-aggregation hierarchy of H (evolution strength of connection)."""
+    import pyamg
+
+    return pyamg.smoothed_aggregation_solver(sp.csr_matrix(H), max_coarse=500, strength=(
+        "evolution", {"k": 2, "proj_type": "D_A", "epsilon": 4.0}))
+
+
 def preconditioners(problem, multigrid):
-    """{name: H -> (r -> z)}: the tensor V-cycle, and pyamg's smoothed aggregation where installed."""
+    """{name: H -> (r -> z)}: the tensor V-cycle, and pyamg's V-cycle where pyamg is installed."""
     n, iu, ju = problem.n, problem.iu, problem.ju
 
     def tensor(H):
@@ -138,30 +147,19 @@ def preconditioners(problem, multigrid):
         return apply
 
     out = dict(tensor=tensor)
-    try:
-        import pyamg
-    except ImportError:
+    if importlib.util.find_spec("pyamg") is None:
         print("pyamg is not installed: the amg column is left out", file=sys.stderr)
         return out
-
-    def amg(H):
-        ml = pyamg.smoothed_aggregation_solver(sp.csr_matrix(H), max_coarse=500, strength=(
-            "evolution", {"k": 2, "proj_type": "D_A", "epsilon": 4.0}))
-        return ml.aspreconditioner(cycle="V")
-    out["amg"] = amg
+    out["amg"] = lambda H: amg(H).aspreconditioner(cycle="V")
     return out
 
 
 def amg_solver(used):
     """solve(H, rhs) by pyamg's smoothed-aggregation PCG to a 1000-fold residual drop; appends the
     iterations to ``used``."""
-    import pyamg
-
     def solve(H, rhs):
-        ml = pyamg.smoothed_aggregation_solver(sp.csr_matrix(H), max_coarse=500, strength=(
-            "evolution", {"k": 2, "proj_type": "D_A", "epsilon": 4.0}))
         residuals = []
-        dx = ml.solve(rhs, tol=1e-3, accel="cg", maxiter=2000, residuals=residuals)
+        dx = amg(H).solve(rhs, tol=1e-3, accel="cg", maxiter=2000, residuals=residuals)
         used.append(len(residuals) - 1)
         return dx
     return solve

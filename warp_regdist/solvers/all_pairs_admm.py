@@ -22,8 +22,8 @@ equal those of Z and Y, and the U-step reads
 
 exactly symmetric at every iteration. One iteration is: the X-step, one batched PCG over
 the n columns with K2 = (alpha + rho) W_D + rho2 M_V (column j's optimality condition
-divided by A_V[j]) and X[j, j] held at 0 (U[j, j] = 0 carried by its copy); the fused z/y-step over elements x columns; the fused U/H-step over
-pairs of W x W tiles. Z and Y are stored together as one (3m, n) array (kernels/all_pairs.py).
+divided by A_V[j]) and X[j, j] held at 0 (U[j, j] = 0 carried by its copy); the fused
+z/y-step over elements x columns; the fused U/H-step over pairs of W x W tiles. Z and Y are stored together as one (3m, n) array (kernels/all_pairs.py).
 The seven residuals of docs/method.md section 5 are computed (r2 = r1, s2 = s1, rx2 = rx1 by the
 symmetry) and reported.
 

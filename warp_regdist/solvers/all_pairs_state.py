@@ -134,16 +134,20 @@ STATE_ROWS = ("X", "U", "H", "DZ", "DZ_acc", "DY_acc")
 """The (n, n) state arrays; with ``v`` (3m, n) they are what a checkpoint holds."""
 
 
-def _free_entries(n, b0, b1, W, dtype):
-    """The X-step's mask of column blocks [b0, b1) as (n, b1 - b0, W) lanes: 1 on the entries the PCG
-    solves for, 0 on padding columns (j >= n) and on each column's own vertex (X[j, j] = 0, as
-    U[j, j] is: column j's X-step is the Dirichlet problem at vertex j)."""
+def _free_entries(n, b0, b1, W, V, device):
+    """The X-step's mask of column blocks [b0, b1): an (n, b1 - b0) array of lanes V, 1 on the
+    entries the PCG solves for, 0 on padding columns (j >= n) and on each column's own vertex
+    (X[j, j] = 0, as U[j, j] is: column j's X-step is the Dirichlet problem at vertex j). Written
+    through the zero-copy view on the CPU (no second n x n copy while the state is allocated)."""
+    mask = wp.zeros((n, b1 - b0), dtype=V, device=device)
+    values = mask.numpy().reshape(n, -1) if device.is_cpu else np.zeros((n, (b1 - b0) * W))
     c0, c1 = b0 * W, min(b1 * W, n)
-    mask = np.zeros((n, (b1 - b0) * W), dtype=dtype)
-    mask[:, :max(0, c1 - c0)] = 1
+    values[:, :max(0, c1 - c0)] = 1
     own = np.arange(c0, c1)
-    mask[own, own - c0] = 0
-    return mask.reshape(n, b1 - b0, W)
+    values[own, own - c0] = 0
+    if not device.is_cpu:
+        mask.assign(values.reshape(n, b1 - b0, W))
+    return mask
 
 
 class _Part:
@@ -174,7 +178,7 @@ class _Part:
             volumes=wp.array(setup.volumes, dtype=sc, device=dev),
             vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
             lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
-            mask=wp.array(_free_entries(n, b0, b1, W, wp.dtype_to_numpy(sc)), dtype=V, device=dev))
+            mask=_free_entries(n, b0, b1, W, V, dev))
         a = self._arrays
         self.mask = a["mask"]
         self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
