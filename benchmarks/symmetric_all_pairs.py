@@ -27,6 +27,7 @@ and 0.002 (its ADMM iterations, its one-sided PCG iterations summed over them, i
 """
 
 import argparse
+import functools
 import itertools
 import os
 import sys
@@ -157,7 +158,12 @@ class SymmetricADMM:
         border[:n, :n] = self.s[:, None] ** 2 * diagonal_response(self.Phi, lam)
         border[:n, n], border[n, :n] = 1.0, self.AV
         self.border = sl.lu_factor(border)
-        self.multigrid = TensorMultigrid(ops.stiffness, self.AV)
+        self.stiffness = ops.stiffness
+
+    @functools.cached_property
+    def multigrid(self):
+        """The TensorMultigrid of W U M + M U W (set up on first use: the exact U-step needs none)."""
+        return TensorMultigrid(self.stiffness, self.AV)
 
     def u_step(self, R, scale):
         """The symmetric U with zero diagonal solving scale (W U M + M U W) = R + Diag(mu)."""
