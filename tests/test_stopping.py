@@ -54,12 +54,37 @@ def test_accuracy_sets_every_tolerance():
     tol = wrd.tolerances
     assert accuracy_tolerances(None) == dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
                                              eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change,
-                                             cg_fraction=tol.cg_fraction)
+                                             eps_excess=tol.pairs_eps_excess, cg_fraction=tol.cg_fraction)
     fine, coarse = accuracy_tolerances(0.001), accuracy_tolerances(0.02)
     assert fine["eps_change"] == pytest.approx(3e-4) and coarse["eps_change"] == pytest.approx(6e-3)
+    assert fine["eps_excess"] == pytest.approx(1e-3) and coarse["eps_excess"] == pytest.approx(2e-2)
     assert fine["eps_rel_consensus"] == pytest.approx(tol.pairs_eps_rel_consensus / 5)
     assert coarse["eps_rel_dual"] == pytest.approx(4 * tol.pairs_eps_rel_dual)
     assert fine["cg_fraction"] == pytest.approx(tol.cg_fraction / 5) and coarse["cg_fraction"] == tol.cg_fraction
+
+
+def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
+    from warp_regdist.geometry.operators import element_diameters
+    from warp_regdist.solvers.stopping import gradient_excess
+
+    # right triangle with legs 1 and 2: diameter sqrt(5); u = (0, 3, 0) has |grad u| = 3 (slope 3 along the leg of 1)
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0]])
+    F = np.array([[0, 1, 2]])
+    ops = wrd.build_operators(wrd.Mesh(V, F))
+    diam = element_diameters(V, F)
+    assert diam == pytest.approx([np.sqrt(5.0)])
+    u = np.array([[0.0, 0.5], [3.0, 0.5], [0.0, 0.5]])  # second column: constant, no gradient
+    assert gradient_excess(ops.grad, diam, u) == pytest.approx((3.0 - 1.0) * np.sqrt(5.0) / 3.0)
+    assert gradient_excess(ops.grad, diam, np.zeros((3, 2))) == 0.0
+    # distances from vertex 0 scaled to |grad| < 1 everywhere (a 1-Lipschitz function): no excess; the exact
+    # minimizer's rows meet the constraint to the conic solver's tolerance
+    mesh, refs = cat80
+    ops = wrd.build_operators(mesh)
+    diam = element_diameters(mesh.vertices, mesh.elements)
+    assert gradient_excess(ops.grad, diam, refs[0.03], block=7) <= 1e-5
+    steep = refs[0.03] * 1.25
+    expected = ((ops.max_gradient(steep).max() - 1.0) * diam.max()) / steep.max()
+    assert 0.0 < gradient_excess(ops.grad, diam, steep) <= expected
 
 
 def test_all_pairs_reads_its_settings_from_tolerances(cat80):

@@ -66,6 +66,11 @@ class Tolerances:
         with c = max |U_k - U_(k - window)| / max U_k, it holds once c / (1 - c / c_before),
         the change still to come at the rate of the last two windows, is <= pairs_eps_change
         (math.inf: no change test).
+    pairs_eps_excess : float
+        The all-pairs stop also waits until U's steepness beyond |grad| <= 1, max over elements
+        and columns of (|grad U_j| - 1)_+ diam(e) / max U (:func:`warp_regdist.solvers.stopping.gradient_excess`,
+        measured every pairs_change_window iterations), is <= pairs_eps_excess (math.inf: no
+        such test).
     degenerate_element : float
         An element whose area (volume) is <= this times its longest edge squared (cubed)
         is refused as degenerate.
@@ -115,6 +120,7 @@ class Tolerances:
     pairs_rho_doubling: float = 30.0
     pairs_eps_change: float = 3e-3
     pairs_change_window: int = 50
+    pairs_eps_excess: float = 5e-3
     degenerate_element: float = 1e-12
     point_snap: float = 1e-3
     curve_snap: float = 0.2

@@ -97,5 +97,5 @@ def run(args: argparse.Namespace) -> None:
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "
               f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
-              f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} of the largest distance "
-              f"{result.distance.max():.4g}. Wrote {args.output}.")
+              f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} and gradient excess "
+              f"{result.gradient_excess:.2%} of the largest distance {result.distance.max():.4g}. Wrote {args.output}.")

@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["Operators", "build_operators", "element_gradients"]
+__all__ = ["Operators", "build_operators", "element_gradients", "element_diameters"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +94,13 @@ def element_gradients(vertices, elements):
     basis = np.concatenate([-rows.sum(axis=1, keepdims=True), rows], axis=1)
     volumes = np.sqrt(np.abs(np.linalg.det(gram))) / (1.0 if d == 1 else 2.0 if d == 2 else 6.0)
     return basis, volumes
+
+
+def element_diameters(vertices, elements):
+    """(m,) longest edge of each simplex, max over its vertex pairs of |v_a - v_b|."""
+    P = vertices[elements]
+    k = elements.shape[1]
+    return np.max([np.linalg.norm(P[:, a] - P[:, b], axis=1) for a in range(k) for b in range(a + 1, k)], axis=0)
 
 
 def build_operators(mesh):

@@ -45,6 +45,7 @@ values (same pattern as W_D), the multigrid preconditioner is built once.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import time
@@ -57,15 +58,16 @@ from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, probl
 from .all_pairs_run import Checkpointing, PairsRun, final_result
 from .all_pairs_state import PairsSettings, SymmetricADMM, check_memory, memory_estimate, middle_matrix
 from .multigrid import smoothed_aggregation
+from .stopping import gradient_excess
 from ..arguments import check_weight, parse_device, parse_workers
 from ..errors import ConvergenceWarning
 from ..file_lock import FileLock
 from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators
+from ..geometry.operators import build_operators, element_diameters
 from ..kernels.lanes import SCALARS
 from ..tolerances import tolerances
 
-__all__ = ["AllPairsSolver", "all_pairs", "DEFAULT_ACCURACY", "CHANGE_SHARE", "accuracy_tolerances"]
+__all__ = ["AllPairsSolver", "all_pairs", "DEFAULT_ACCURACY", "CHANGE_SHARE", "EXCESS_SHARE", "accuracy_tolerances"]
 
 DEFAULT_ACCURACY = 0.005
 """Max error, in units of the max distance, that the residual tolerances ``tolerances.pairs_eps_rel*``
@@ -76,20 +78,24 @@ CHANGE_SHARE = 0.3
 stop was up to 3.7 times the change test's estimate at accuracy 0.01 and 6.8 times at 0.002; with 0.6 x
 accuracy 5 of 64 runs stopped outside the accuracy asked, with 0.3 x accuracy 1 of 68."""
 
+EXCESS_SHARE = 1.0
+"""eps_excess = EXCESS_SHARE x accuracy (:func:`~warp_regdist.solvers.stopping.gradient_excess`)."""
+
 
 def accuracy_tolerances(accuracy, tol=tolerances):
     """The tolerances of a run asked to stop within ``accuracy`` x max U of the minimizer, as a dict
     keyed by the argument names: the residual tolerances ``tol.pairs_eps_rel``, ``pairs_eps_rel_consensus``
     and ``pairs_eps_rel_dual`` scaled by s = accuracy / DEFAULT_ACCURACY, eps_change = CHANGE_SHARE x
-    accuracy, and the PCG's ``tol.cg_fraction`` x min(1, s) (a finer run needs finer X-steps).
-    None: the settings themselves."""
+    accuracy, eps_excess = EXCESS_SHARE x accuracy and the PCG's ``tol.cg_fraction`` x min(1, s) (a
+    finer run needs finer X-steps). None: the settings themselves."""
     if accuracy is None:
         return dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
-                    eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change, cg_fraction=tol.cg_fraction)
+                    eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change,
+                    eps_excess=tol.pairs_eps_excess, cg_fraction=tol.cg_fraction)
     scale = accuracy / DEFAULT_ACCURACY
     return dict(eps_rel=tol.pairs_eps_rel * scale, eps_rel_consensus=tol.pairs_eps_rel_consensus * scale,
                 eps_rel_dual=tol.pairs_eps_rel_dual * scale, eps_change=CHANGE_SHARE * accuracy,
-                cg_fraction=tol.cg_fraction * min(1.0, scale))
+                eps_excess=EXCESS_SHARE * accuracy, cg_fraction=tol.cg_fraction * min(1.0, scale))
 
 
 def _check_accuracy(accuracy):
@@ -169,6 +175,7 @@ class AllPairsSolver:
                              "(solve each component separately)")
         self.mesh, self.dtype, self.device = mesh, dtype, parse_device(device)
         self.operators = ops = build_operators(mesh)
+        self._excess = functools.partial(gradient_excess, ops.grad, element_diameters(mesh.vertices, mesh.elements))
         self.schedule = PenaltySchedule.all_pairs(tolerances, ops.length_scale) if schedule is None else schedule
         self._penalty_mid = _penalty_mid(self.schedule, ops.length_scale)
         self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device))
@@ -176,7 +183,7 @@ class AllPairsSolver:
 
     def solve(self, accuracy=None, max_iterations=3000, eps_rel=None, eps_rel_consensus=None, eps_rel_dual=None,
               eps_change=None, cg_fraction=None, progress=None, checkpoint=None, checkpoint_seconds=300.0,
-              resume=None, initial=None):
+              resume=None, initial=None, eps_excess=None):
         """Run the ADMM from zeros (or ``resume`` / ``initial``); returns an :class:`~warp_regdist.AllPairsResult`.
 
         Parameters
@@ -200,6 +207,11 @@ class AllPairsSolver:
             c_k = max |U_k - U_(k - w)| / max U_k, stop only once c_k / (1 - c_k / c_(k - w)) (the
             rest of a geometric series at the last two windows' rate) is <= eps_change (math.inf:
             no change test, the residual test alone). None: from ``accuracy``.
+        eps_excess : float or None
+            Steepness test, at the same iterations: stop only once U breaks |grad U_j| <= 1 by at
+            most max over elements e and columns j of (|grad U_j|_e - 1)_+ diam(e) <= eps_excess
+            max U (:func:`~warp_regdist.solvers.stopping.gradient_excess`; the result's
+            ``gradient_excess``). math.inf: no such test. None: from ``accuracy``.
         cg_fraction : float or None
             Each X-step's PCG stops at a residual of cg_fraction (|D Y_j| + |A_V| / 2) per column j
             (looser solves, 1e-2, can keep the residuals from ever meeting the stopping test).
@@ -248,11 +260,11 @@ class AllPairsSolver:
         tol, mesh, dtype = tolerances, self.mesh, self.dtype
         chosen = accuracy_tolerances(_check_accuracy(accuracy), tol)
         for name, value in dict(eps_rel=eps_rel, eps_rel_consensus=eps_rel_consensus, eps_rel_dual=eps_rel_dual,
-                                eps_change=eps_change, cg_fraction=cg_fraction).items():
+                                eps_change=eps_change, eps_excess=eps_excess, cg_fraction=cg_fraction).items():
             if value is not None:
                 chosen[name] = value
         for name, value in list(chosen.items()) + [("checkpoint_seconds", checkpoint_seconds)]:
-            if not (name == "eps_change" and value == math.inf):  # inf: no change test
+            if not (name in ("eps_change", "eps_excess") and value == math.inf):  # inf: no such test
                 check_weight(value, name, positive=True)
         if progress is not None and not callable(progress):
             raise ValueError(f"expected progress as a callable or None, got {progress!r}")
@@ -278,23 +290,35 @@ class AllPairsSolver:
                      if initial is not None else None)
             memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device)
             if saved is not None and "final" in saved:
-                return _flag_steep(final_result(saved, memory, checkpoint), self.operators, tol.max_gradient)
+                return self._flag_steep(final_result(saved, memory, checkpoint))
             state = stack.enter_context(contextlib.closing(SymmetricADMM(
                 mesh, self.operators, self.alpha_hat, self.device, dtype, settings, self.workers, self._auto_workers,
                 self.hierarchy)))
             run = PairsRun(state, settings, self.schedule, memory, max_iterations, progress,
-                           Checkpointing(checkpoint, checkpoint_seconds, fingerprint))
+                           Checkpointing(checkpoint, checkpoint_seconds, fingerprint), self._excess)
             if saved is not None:
                 run.restore(saved)
             if start is not None:
                 run.warm_start(start)
-            return _flag_steep(run.iterate(t0), self.operators, tol.max_gradient)
+            return self._flag_steep(run.iterate(t0))
+
+    def _flag_steep(self, res):
+        """``res`` with its ``gradient_excess``, and with converged False and a ConvergenceWarning where
+        max |G U| over elements and columns exceeds ``tolerances.max_gradient`` or is NaN."""
+        res.gradient_excess = self._excess(res.distance)
+        steepest, limit = np.max(self.operators.max_gradient(res.distance)), tolerances.max_gradient
+        if res.converged and not steepest <= limit:
+            res.converged = False
+            warnings.warn(f"all-pairs ADMM returned distances that break |grad U| <= 1 (max |grad U| {steepest:.3g}, "
+                          f"above tolerances.max_gradient = {limit:g}) although its residual tests held: not converged; "
+                          "more iterations or a smaller accuracy", ConvergenceWarning, stacklevel=3)
+        return res
 
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, accuracy=None, eps_rel=None,
               eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, progress=None,
               workers=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, eps_change=None, schedule=None,
-              initial=None):
+              initial=None, eps_excess=None):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh:
     ``AllPairsSolver(mesh, alpha_hat, device, dtype, rho2_factor, schedule, workers).solve(...)`` with
     the other arguments (see :class:`AllPairsSolver` and :meth:`AllPairsSolver.solve`).
@@ -307,20 +331,9 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                             workers=workers)
     return solver.solve(accuracy=accuracy, max_iterations=max_iterations, eps_rel=eps_rel,
                         eps_rel_consensus=eps_rel_consensus, eps_rel_dual=eps_rel_dual, eps_change=eps_change,
-                        cg_fraction=cg_fraction, progress=progress, checkpoint=checkpoint,
+                        eps_excess=eps_excess, cg_fraction=cg_fraction, progress=progress, checkpoint=checkpoint,
                         checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial)
 
-
-def _flag_steep(res, ops, limit):
-    """``res`` with converged False and a ConvergenceWarning where max |G U| over elements and columns
-    exceeds ``limit`` or is NaN."""
-    steepest = np.max(ops.max_gradient(res.distance))
-    if res.converged and not steepest <= limit:
-        res.converged = False
-        warnings.warn(f"all-pairs ADMM returned distances that break |grad U| <= 1 (max |grad U| {steepest:.3g}, "
-                      f"above tolerances.max_gradient = {limit:g}) although its residual tests held: not converged; "
-                      "more iterations or a smaller accuracy", ConvergenceWarning, stacklevel=3)
-    return res
 
 
 def _penalty_mid(schedule, L):

@@ -1,5 +1,6 @@
 """One all-pairs ADMM run on a :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM`: the iteration
-loop, the seven residuals and the change test of docs/method.md section 8, checkpoints and the result."""
+loop, the seven residuals, the change and steepness tests of docs/method.md section 8, checkpoints and
+the result."""
 
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ class PairsRun:
     uninterrupted run's arithmetic exactly.
     """
 
-    def __init__(self, state, settings, schedule, memory, max_iterations, progress, checkpointing):
+    def __init__(self, state, settings, schedule, memory, max_iterations, progress, checkpointing, excess):
         self.state, self.settings, self.schedule = state, settings, schedule
         self.memory, self.max_iterations, self.progress = memory, max_iterations, progress
         self.checkpoint, self.checkpoint_seconds = checkpointing.path, checkpointing.seconds
@@ -70,6 +71,8 @@ class PairsRun:
         self.seconds_before = 0.0
         # U as one column: its change test (snapshot, the last window's change, the change to come)
         self.change_test = ExtrapolatedChangeTest(settings.change_window, settings.eps_change, 1)
+        # excess(U (n, n)): stopping.gradient_excess, of the U of the last change test
+        self.excess, self.last_excess = excess, math.inf
 
     def restore(self, saved):
         st = self.state
@@ -88,6 +91,7 @@ class PairsRun:
             window_change, change = saved["change"]
             self.change_test.restore(dict(snapshot=saved["change_snapshot"].reshape(-1, 1),
                                           window_change=[window_change], change=[change]))
+            self._measure_excess(self.change_test.snapshot)
 
     def warm_start(self, saved):
         """Start from the iterate of checkpoint ``saved`` (another problem on this mesh): X, U, H, v
@@ -171,11 +175,18 @@ class PairsRun:
             self.progress(it, res, eps, self._elapsed(), self.memory)
         if self.change_test.due(it):
             self.change_test.update(st.view("U").reshape(-1, 1))
-        if np.all(res <= eps) and self.change_test.settled[0]:
+            self._measure_excess(self.change_test.snapshot)
+        if np.all(res <= eps) and self.change_test.settled[0] and self.last_excess <= tol.eps_excess:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
             return True
         return False
+
+    def _measure_excess(self, snapshot):
+        """last_excess: the steepness test's measure of the U in ``snapshot`` (the change test's, lanes flattened)."""
+        if self.settings.eps_excess < math.inf:
+            n = self.state.n
+            self.last_excess = self.excess(snapshot.reshape(n, -1)[:, :n])
 
     def advance(self, it, count):
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
@@ -202,9 +213,11 @@ class PairsRun:
         converged, interrupted = reason == CONVERGED, reason == INTERRUPTED
         res, eps, st = self.res, self.eps, self.state
         if not converged and not interrupted:
+            tol = self.settings
             warnings.warn(f"all-pairs ADMM did not converge in {self.max_iterations} iterations "
-                          f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g})", ConvergenceWarning,
-                          stacklevel=3)
+                          f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g}, change to come "
+                          f"{self.change_test.change[0]:.3g} / eps_change {tol.eps_change:.3g}, gradient excess "
+                          f"{self.last_excess:.3g} / eps_excess {tol.eps_excess:.3g})", ConvergenceWarning, stacklevel=3)
         return AllPairsResult(distance=st.distance(), iterations=it, converged=converged, interrupted=interrupted,
                               residuals=res, tolerance=eps, history=np.array(self.history).reshape(-1, 7),
                               **_estimate(float(self.change_test.change[0])),

@@ -28,7 +28,8 @@ class PairsSettings:
     and passed explicitly (the worker processes get them with the setup).
 
     eps_abs, eps_rel, eps_rel_consensus, eps_rel_dual: the residual tests' absolute and relative
-    tolerances; eps_change, change_window: the extrapolated change test; rho2_factor: the
+    tolerances; eps_change, change_window: the extrapolated change test; eps_excess: the test of U's
+    steepness beyond the constraint (stopping.gradient_excess); rho2_factor: the
     consensus penalty rho2 = rho2_factor rho^2 / (L A); relaxation: the over-relaxation of all
     three steps; cg_fraction, cg_rtol, cg_max_iterations: the X-step's PCG; penalty_mid: the
     geometric mean of the penalty schedule's range, in units of L (the multigrid's target).
@@ -40,6 +41,7 @@ class PairsSettings:
     eps_rel_dual: float
     eps_change: float
     change_window: int
+    eps_excess: float
     rho2_factor: float
     relaxation: float
     cg_fraction: float

@@ -146,8 +146,8 @@ class AllPairsResult(OptimizeResult):
         Exactly symmetric, zero diagonal, non-negative.
     iterations : int
     converged : bool
-        True when all seven residuals met their tolerances and the last change test held
-        (``eps_change``) before ``max_iterations``.
+        True when all seven residuals met their tolerances and the last change and steepness
+        tests held (``eps_change``, ``eps_excess``) before ``max_iterations``.
     residuals, tolerance : (7,) ndarray
         Final residuals (r1, r2, s1, s2, rx1, rx2, sx) and their tolerances.
     history : (iterations, 7) ndarray
@@ -159,6 +159,9 @@ class AllPairsResult(OptimizeResult):
         small irregular meshes the true error at the stop was up to 3.7 times it at accuracy 0.01
         and 6.8 times at 0.002, and on the 1,949-vertex cat about 4.6 times at 0.005
         (docs/guides/all-pairs.md).
+    gradient_excess : float
+        How far ``distance`` breaks |grad U_j| <= 1: max over elements e and columns j of
+        (|grad U_j|_e - 1)_+ diam(e) / max U (``eps_excess``).
     cg_iterations : int
         PCG iterations summed over ADMM iterations (the largest count among the worker processes).
     seconds : float

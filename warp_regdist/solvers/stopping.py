@@ -7,8 +7,8 @@ duals do (:func:`dual_scale`): a test relative to |D y| alone never holds where 
 constraint is active. A column (a source set, or the all-pairs matrix as one column) also
 waits for its change test: :class:`ChangeTest` (single sources: the change of the last
 window, and its error estimate :func:`vertex_extrapolation`) or :class:`ExtrapolatedChangeTest`
-(all pairs: the change still to come at the rate of the last two windows). The u-step's PCG
-stops at :func:`cg_tolerance`.
+(all pairs: the change still to come at the rate of the last two windows, and
+:func:`gradient_excess`). The u-step's PCG stops at :func:`cg_tolerance`.
 
 DistanceSolver runs this rule on the device (kernels/single_source.py ``change_measure`` and
 ``admm_check``, with the constants of ``single_source_batch.DeviceRule``); the tests run the
@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 __all__ = ["tolerance", "dual_scale", "cg_tolerance", "ChangeTest", "ExtrapolatedChangeTest", "vertex_extrapolation",
-           "ESTIMATE_RATE_CAP"]
+           "gradient_excess", "ESTIMATE_RATE_CAP"]
 
 ESTIMATE_RATE_CAP = 0.95
 """The largest rate per window at which :func:`vertex_extrapolation` extends a vertex's change
@@ -66,6 +66,25 @@ def vertex_extrapolation(u, snapshot, moved_last, rate_cap=ESTIMATE_RATE_CAP):
         top = np.abs(u).max(axis=0)
         estimate = np.where((d.max(axis=0) > 0) & (top > 0), (d / (1 - q)).max(axis=0) / top, 0.0)
     return estimate, d
+
+
+def gradient_excess(grad, diameters, u, block=64):
+    """The steepness of u beyond the constraint, in units of max u:
+
+        max over elements e and columns j of (|(G u_j)_e| - 1)_+ diam(e) / max u,
+
+    what column j gains across element e above unit speed (0 where every |G u_j| <= 1, or u = 0).
+    grad: G (3m, n) sparse, row 3 e + c component c on element e; diameters (m,); u (n, k),
+    ``block`` columns at a time. The all-pairs minimizer has none: an iterate's consensus can still
+    be far from settled where its residuals and its change have become small (docs/method.md
+    section 8).
+    """
+    m = diameters.size
+    top, worst = float(u.max(initial=0.0)), 0.0
+    for j in range(0, u.shape[1], block):
+        g = np.square((grad @ np.asarray(u[:, j:j + block], dtype=np.float64)).reshape(m, 3, -1)).sum(axis=1)
+        worst = max(worst, float(((np.sqrt(g.max(axis=1)) - 1.0) * diameters).max(initial=0.0)))
+    return worst / top if top > 0 else 0.0
 
 
 class ChangeTest:
