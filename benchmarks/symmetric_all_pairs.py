@@ -177,14 +177,18 @@ class SymmetricADMM:
         return 0.5 * (U + U.T)
 
     def iterates(self, rho, relaxation=1.7, inner_tol=None):
-        """Yield (U, PCG iterations so far, Y) after each iteration at fixed ``rho``; the U-step exact
-        (inner_tol None) or by :func:`masked_pcg` with the tensor multigrid. Y (3 m, n), the
-        multipliers of Z = G U, is updated in place by the next iteration."""
+        """Yield (U, PCG iterations so far, Y) after each iteration at the penalty ``rho`` (a number, or
+        rho(k) at iteration k = 0, 1, ...); the U-step exact (inner_tol None) or by :func:`masked_pcg`
+        with the tensor multigrid. Y (3 m, n), the multipliers of Z = G U, is updated in place by the
+        next iteration."""
         n, m, AV = len(self.AV), self.m, self.AV
         Z, Y, U = np.zeros((3 * m, n)), np.zeros((3 * m, n)), np.zeros((n, n))
-        pcg, scale = 0, self.alpha + rho / 2
-        while True:
-            B = self.D @ (rho * Z - Y) * AV[None, :]
+        penalty = rho if callable(rho) else (lambda k, fixed=rho: fixed)
+        pcg = 0
+        for k in itertools.count():
+            rho_k = penalty(k)
+            scale = self.alpha + rho_k / 2
+            B = self.D @ (rho_k * Z - Y) * AV[None, :]
             R = np.outer(AV, AV) + 0.5 * (B + B.T)
             if inner_tol is None:
                 U = self.u_step(R, scale)
@@ -193,11 +197,24 @@ class SymmetricADMM:
                                      R, U, inner_tol)
                 pcg += used
             h = relaxation * (self.G @ U) + (1 - relaxation) * Z
-            T = (Y / rho + h).reshape(m, 3, n)
+            T = (Y / rho_k + h).reshape(m, 3, n)
             Znew = (T / np.maximum(1.0, np.linalg.norm(T, axis=1, keepdims=True))).reshape(3 * m, n)
-            Y += rho * (h - Znew)
+            Y += rho_k * (h - Znew)
             Z = Znew
             yield U, pcg, Y
+
+    def reference(self, iterations, rho0=16.0, rho_max=128.0, doubling=300, window=500):
+        """A long run of the exact U-step with the penalty rho_k = L min(rho_max, rho0 2^(k // doubling)), for
+        meshes whose exact minimizer does not fit a conic solver: (U, max |U_k - U_(k - window)| / max U_k
+        at the end, inf for fewer than ``window`` iterations)."""
+        def schedule(k):
+            return self.L * min(rho_max, rho0 * 2 ** (k // doubling))
+
+        before = None
+        for k, (U, _, _) in enumerate(itertools.islice(self.iterates(schedule), iterations)):
+            if k == iterations - 1 - window:
+                before = U.copy()
+        return U, (np.abs(U - before).max() / U.max() if before is not None else np.inf)
 
     def run(self, exact, rho, max_iterations, inner_tol=None):
         """{level: (iterations, PCG iterations)} until U is within each of LEVELS of max |exact|."""
