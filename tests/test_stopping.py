@@ -76,6 +76,7 @@ def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
     u = np.array([[0.0, 0.5], [3.0, 0.5], [0.0, 0.5]])  # second column: constant, no gradient
     assert gradient_excess(ops.grad, diam, u) == pytest.approx((3.0 - 1.0) * np.sqrt(5.0) / 3.0)
     assert gradient_excess(ops.grad, diam, np.zeros((3, 2))) == 0.0
+    assert np.isnan(gradient_excess(ops.grad, diam, np.array([[0.0], [np.nan], [1.0]])))
     # distances from vertex 0 scaled to |grad| < 1 everywhere (a 1-Lipschitz function): no excess; the exact
     # minimizer's rows meet the constraint to the conic solver's tolerance
     mesh, refs = cat80

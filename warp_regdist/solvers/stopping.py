@@ -73,7 +73,8 @@ def gradient_excess(grad, diameters, u, block=64):
 
         max over elements e and columns j of (|(G u_j)_e| - 1)_+ diam(e) / max u,
 
-    what column j gains across element e above unit speed (0 where every |G u_j| <= 1, or u = 0).
+    what column j gains across element e above unit speed (0 where every |G u_j| <= 1, or u = 0; NaN
+    where u holds NaN or inf).
     grad: G (3m, n) sparse, row 3 e + c component c on element e; diameters (m,); u (n, k),
     ``block`` columns at a time. The all-pairs minimizer has none: an iterate's consensus can still
     be far from settled where its residuals and its change have become small (docs/method.md
@@ -81,6 +82,8 @@ def gradient_excess(grad, diameters, u, block=64):
     """
     m = diameters.size
     top, worst = float(u.max(initial=0.0)), 0.0
+    if not math.isfinite(top):
+        return math.nan
     for j in range(0, u.shape[1], block):
         g = np.square((grad @ np.asarray(u[:, j:j + block], dtype=np.float64)).reshape(m, 3, -1)).sum(axis=1)
         worst = max(worst, float(((np.sqrt(g.max(axis=1)) - 1.0) * diameters).max(initial=0.0)))
