@@ -6,7 +6,7 @@
     python benchmarks/all_pairs.py --dtypes float32 --no-baseline --workers 1 0   # 1 process vs all cores
     python benchmarks/all_pairs.py --dtypes float32 --accuracies 0.02 0.01 0.005 --no-baseline
     python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping   # accuracy= against exact minimizers
-    python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping --larger   # and 300-500 vertices (slow)
+    python benchmarks/all_pairs.py --larger --cache /tmp/stopping     # 300-500 vertices against long runs
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -22,14 +22,18 @@ so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
 With ``--accuracy``: ``AllPairsSolver.solve(accuracy=e)`` for e in 0.02, 0.01, 0.005, 0.002 on the
 irregular meshes whose exact minimizers are known (the two in tests/data, and those of
 benchmarks/stopping.py's all-pairs sets found in ``--cache``, ``--pairs --larger``): iterations, time, time per iteration,
-error, the result's error_estimate and gradient_excess in % of the max distance, one process. With
-``--larger`` also at 0.01 and 0.005 on decimations of the shared meshes to 300-500 vertices (``LARGER``),
-whose exact minimizers do not fit Clarabel, against 5,000 iterations of the symmetric splitting
-(benchmarks/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``; its last 500
-iterations moved it 0.005-0.02% of max U on these meshes). Writes benchmarks/results/all_pairs_accuracy.csv.
+error, the result's error_estimate and gradient_excess in % of the max distance, one process. Writes
+benchmarks/results/all_pairs_accuracy.csv.
+
+With ``--larger``: the same at 0.01 and 0.005 on decimations of the shared meshes to 300-500 vertices
+(``LARGER``), whose exact minimizers do not fit Clarabel, against 5,000 iterations of the symmetric
+splitting (benchmarks/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
+beside each run the same solve without the steepness test (``eps_excess=inf``, columns
+``unchecked_*``). Writes benchmarks/results/all_pairs_larger.csv.
 """
 
 import argparse
+import math
 import os
 import resource
 import sys
@@ -50,6 +54,7 @@ from warp_regdist.metrics import symmetry_error, triangle_inequality_violations 
 
 RESULTS = os.path.join(HERE, "results", "all_pairs.csv")
 ACCURACY_RESULTS = os.path.join(HERE, "results", "all_pairs_accuracy.csv")
+LARGER_RESULTS = os.path.join(HERE, "results", "all_pairs_larger.csv")
 ACCURACIES = (0.02, 0.01, 0.005, 0.002)
 LARGER = (("cat_rr", 500, 0.03), ("spot_rr_holes", 302, 0.03), ("spot_rr", 400, 0.03), ("bent_pipe_closed_lr", 350, 0.03),
           ("cat_rr", 350, 0.1))
@@ -87,35 +92,36 @@ def exact_cases(cache):
 
 
 def larger_cases(cache):
-    """(name, mesh, alpha_hat, reference) of ``LARGER``, the references computed once into ``cache``."""
+    """Yield (name, mesh, alpha_hat, reference) of ``LARGER``, each reference computed once into ``cache``."""
     import stopping
     from symmetric_all_pairs import SymmetricADMM
 
-    cases = []
     for name, vertices, alpha_hat in LARGER:
         mesh = stopping.decimated(name, vertices)
         key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
         reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat).reference(REFERENCE_ITERATIONS)[0])
-        cases.append((f"{name} decimated", mesh, alpha_hat, np.maximum(reference, 0.0)))
-    return cases
+        yield f"{name} decimated", mesh, alpha_hat, np.maximum(reference, 0.0)
 
 
-def accuracy_rows(cache, larger):
+def _run_columns(res, reference, prefix=""):
+    return {f"{prefix}iterations": res.iterations, f"{prefix}converged": res.converged,
+            f"{prefix}error_pct": round(100 * float(np.abs(res.distance - reference).max() / reference.max()), 3),
+            f"{prefix}estimate_pct": round(100 * res.error_estimate, 3),
+            f"{prefix}excess_pct": round(100 * res.gradient_excess, 3)}
+
+
+def accuracy_rows(cases, accuracies, baseline=False):
+    """One row per case and accuracy; with ``baseline`` also the run with ``eps_excess=inf``."""
     rows = []
-    cases = [(case, "exact", ACCURACIES) for case in exact_cases(cache)]
-    if larger:
-        cases += [(case, "symmetric", LARGER_ACCURACIES) for case in larger_cases(cache)]
-    for (name, mesh, alpha_hat, reference), kind, accuracies in cases:
+    for name, mesh, alpha_hat, reference in cases:
         solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1)
         for accuracy in accuracies:
             res = solver.solve(accuracy=accuracy)
             row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs", accuracy=accuracy,
-                       reference=kind, iterations=res.iterations, seconds=round(res.seconds, 3),
-                       ms_per_iteration=round(1e3 * res.seconds / res.iterations, 3),
-                       error_pct=round(100 * float(np.abs(res.distance - reference).max() / reference.max()), 3),
-                       estimate_pct=round(100 * res.error_estimate, 3),
-                       excess_pct=round(100 * res.gradient_excess, 3), converged=res.converged,
-                       peak_rss_gb=round(peak_rss_gb(), 2))
+                       **_run_columns(res, reference), seconds=round(res.seconds, 3),
+                       ms_per_iteration=round(1e3 * res.seconds / res.iterations, 3), peak_rss_gb=round(peak_rss_gb(), 2))
+            if baseline:
+                row.update(_run_columns(solver.solve(accuracy=accuracy, eps_excess=math.inf), reference, "unchecked_"))
             rows.append(row)
             print(row, flush=True)
     return rows
@@ -135,14 +141,20 @@ def main():
                         help="all_pairs(accuracy=) of the runs (default: the tolerances' settings)")
     parser.add_argument("--accuracy", action="store_true", help="accuracy= against exact minimizers of small meshes")
     parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
-    parser.add_argument("--larger", action="store_true", help="with --accuracy: also LARGER against symmetric references")
+    parser.add_argument("--larger", action="store_true", help="accuracy= on LARGER against long symmetric runs")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-    if args.accuracy:
+    if args.larger and args.cache is None:
+        parser.error("--larger needs --cache, the folder of its references")
+    if args.accuracy or args.larger:
         sys.path.append(os.path.join(HERE, "..", "tests"))  # stopping.py's references (after benchmarks/)
-        write_csv(accuracy_rows(args.cache, args.larger), ACCURACY_RESULTS)
-        print(f"wrote {ACCURACY_RESULTS}")
+        if args.accuracy:
+            write_csv(accuracy_rows(exact_cases(args.cache), ACCURACIES), ACCURACY_RESULTS)
+            print(f"wrote {ACCURACY_RESULTS}")
+        if args.larger:
+            write_csv(accuracy_rows(larger_cases(args.cache), LARGER_ACCURACIES, baseline=True), LARGER_RESULTS)
+            print(f"wrote {LARGER_RESULTS}")
         return 0
     mesh = meshes.shared_mesh(args.mesh)
     if mesh is None:

@@ -14,7 +14,7 @@ the lines up to ``<!-- end table -->``, with the stamp under the table::
     <!-- end table -->
 
 ``key=Header`` pairs choose and name the columns; ``where key=v1,v2`` keeps the rows whose
-column equals one of the values (``where a=x & b=y,z``: every condition). Floats get 4 significant digits, integers thousands separators.
+column equals one of the values. Floats get 4 significant digits, integers thousands separators.
 """
 
 import argparse
@@ -121,7 +121,7 @@ def _cell(text):
 
 def render_table(name, columns, where=None, data=DATA):
     """The markdown lines of table ``name`` (docs/data/NAME.csv): ``columns`` "key=Header, ...",
-    ``where`` "key=v1,v2 & key2=v3" (rows to keep); ValueError for a missing CSV, stamp or column."""
+    ``where`` "key=v1,v2" (rows to keep); ValueError for a missing CSV, stamp or column."""
     path = os.path.join(data, f"{name}.csv")
     if not os.path.isfile(path) or not os.path.isfile(_stamp_path(path)):
         raise ValueError(f"expected {os.path.relpath(path, ROOT)} and its stamp, got none (run the benchmark, "
@@ -133,8 +133,8 @@ def render_table(name, columns, where=None, data=DATA):
     pairs = [c.split("=", 1) for c in (c.strip() for c in columns.split(",")) if c]
     if any(len(p) != 2 for p in pairs):
         raise ValueError(f"expected columns of table {name} as key=Header pairs, got {columns!r}")
-    for condition in where.split("&") if where else ():
-        key, values = condition.split("=", 1)
+    if where:
+        key, values = where.split("=", 1)
         keep = [v.strip() for v in values.split(",")]
         rows = [r for r in rows if r.get(key.strip()) in keep]
     missing = [k for k, _ in pairs if rows and k not in rows[0]]
