@@ -82,8 +82,8 @@ EXCESS_SHARE = 1.0
 """eps_excess = EXCESS_SHARE x accuracy (:func:`~warp_regdist.solvers.stopping.gradient_excess`). Replayed on
 the recorded iterates of 19 exact cases (42-250 vertices) and 5 decimations to 300-500 vertices: at 1 x
 accuracy 1 of 10 larger runs stopped as converged outside the accuracy (2.08% at 0.01) and the 250-vertex
-cat ended unconverged within it at 0.005; at 0.5 x and 0.3 x the same larger run still stopped at 0.02,
-and 5 and 6 small cases ended unconverged at 0.002."""
+cat ended unconverged within it at 0.005; at 0.5 x that larger run still stopped outside at 0.02, and
+at 0.5 x and 0.3 x 5 and 6 small cases ended unconverged at 0.002."""
 
 
 def accuracy_tolerances(accuracy, tol=tolerances):
