@@ -15,7 +15,6 @@ constraints alone: the problem is invariant under U -> U^T and its minimizer is 
 half the cones and lets Clarabel handle a few hundred vertices.
 """
 
-import cvxpy as cp
 import numpy as np
 
 import reference_solver as rs
@@ -40,6 +39,7 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
     -------
     (n, n) float64
     """
+    import cvxpy as cp  # only the conic solves need it: the helpers run without cvxpy
     n = len(V)
     areas, _ = rs.face_geometry(V, F)
     grads = rs.gradient_matrices(V, F)

@@ -9,7 +9,6 @@ numpy (deliberately not importing ``warp_regdist``), and solves
 with cvxpy + Clarabel (an interior-point conic solver).
 """
 
-import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
 
@@ -125,6 +124,7 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
     (n,) float64
         The minimizer u.
     """
+    import cvxpy as cp  # only the conic solves need it: the helpers run without cvxpy
     n = len(V)
     areas, _ = face_geometry(V, F)
     Gx, Gy, Gz = gradient_matrices(V, F)
