@@ -79,11 +79,13 @@ def test_alpha_one_converges_at_defaults(device):
 
 
 def test_blown_up_iterate_is_not_reported_as_converged(device):
-    # one needle triangle (height 1e-7): the iteration blows up to ~1e154 while its relative
-    # stopping test holds; the |grad u| <= 1 check must catch it
+    # one needle triangle (height 1e-7): on the CPU the iteration blows up to ~1e154 while its
+    # relative stopping test holds, and the |grad u| <= 1 check must catch it; on CUDA, whose
+    # rounding differs, the iteration stays bounded and reaches the iteration cap instead
     V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1e-7, 0.0]])
     solver = wrd.DistanceSolver(wrd.Mesh(V, [[0, 1, 2]]), device=device)
-    with pytest.warns(wrd.ConvergenceWarning, match=r"break \|grad u\| <= 1"):
+    message = r"break \|grad u\| <= 1" if device == "cpu" else r"did not converge in 10000 iterations"
+    with pytest.warns(wrd.ConvergenceWarning, match=message):
         res = solver.solve([0])
     assert not res.converged
 
