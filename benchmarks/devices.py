@@ -15,7 +15,7 @@ Cases, after every kernel is compiled on small meshes (no time includes compilat
 
 Columns: iterations, setup and solve seconds, seconds per iteration, converged, the result's error
 estimate (all pairs) and the device's memory high-water mark so far (CUDA). Writes
-benchmarks/results/devices.csv.
+benchmarks/results/devices_cpu.csv or devices_cuda.csv.
 """
 
 import argparse
@@ -112,12 +112,14 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device (default: Warp's default device)")
     parser.add_argument("--quick", action="store_true", help="small sizes, to try the script")
-    parser.add_argument("--out", default=os.path.join(HERE, "results", "devices.csv"))
+    parser.add_argument("--out", default=None, help="CSV path (default: benchmarks/results/devices_cpu.csv or "
+                                                     "devices_cuda.csv)")
     args = parser.parse_args()
     device = parse_device(args.device)
+    out = args.out or os.path.join(HERE, "results", f"devices_{'cuda' if device.is_cuda else 'cpu'}.csv")
     rows = run(device, args.quick)
-    write_csv(rows, args.out)
-    print(f"wrote {args.out}")
+    write_csv(rows, out)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
