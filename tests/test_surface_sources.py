@@ -186,6 +186,25 @@ def test_equator_curve_on_the_sphere():
     assert errors[1] < 0.7 * errors[0]
 
 
+def test_equator_through_vertices_rounded_as_a_file_rounds_them():
+    """The icosphere's equator runs along its edges. Vertices rounded as a file rounds them (10
+    decimals in trimesh's OFF, float32 in STL) tilt the faces' normals, so the section plane
+    passes 1e-11 to 1e-8 above or below the equator's vertices: the curve must still cut the
+    sphere into the same two halves."""
+    th = np.linspace(0, 2 * np.pi, 10, endpoint=False)
+    ring = np.stack([np.cos(th), np.sin(th), 0 * th], axis=1)
+    exact = _sphere(3)
+    signs = []
+    for mesh in (exact, wrd.Mesh(np.round(exact.vertices, 10), exact.elements),
+                 wrd.Mesh(exact.vertices.astype(np.float32).astype(np.float64), exact.elements)):
+        res = wrd.DistanceSolver(mesh, alpha_hat=0.05).solve(curve=wrd.surface_points(mesh, ring), closed=True)
+        signs.append(np.sign(res.signed_distance))
+        Z = exact.vertices[:, 2]
+        assert (res.signed_distance[Z > 1e-9] < 0).all() and (res.signed_distance[Z < -1e-9] > 0).all()
+    np.testing.assert_array_equal(signs[1], signs[0])
+    np.testing.assert_array_equal(signs[2], signs[0])
+
+
 def test_open_curve_is_zero_along_its_edges():
     mesh = _sphere(3)
     pts = wrd.surface_points(mesh, [[1, 0, 0.3], [0.3, 1, 0.2], [-0.2, 0.9, -0.4]], max_distance=1.0)

@@ -7,7 +7,10 @@ returns the points where it crosses edges. Between two crossings the curve is st
 inside one face, so inserting the points and these segments into the mesh
 (:func:`warp_regdist.geometry.surface_points.refine`) makes the curve a chain of edges.
 On a plane the section is the straight segment A-B (the geodesic); on a curved surface it
-is a planar curve close to the geodesic for points a few faces apart.
+is a planar curve close to the geodesic for points a few faces apart. Vertices within
+``tolerances.point_snap`` mean edge lengths of the plane lie on it, so a section along edges
+(an equator through the vertices of a sphere) is walked the same way whether the file that held
+the vertices rounded them or not.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ def trace_curve(mesh, faces, bary, closed=False):
 
     normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    on_plane = tolerances.point_snap * np.linalg.norm(V[T] - V[T[:, [1, 2, 0]]], axis=2).mean()
     out_f, out_b = list(faces), list(bary)
     chain = [0]
     pairs = list(zip(range(len(faces) - 1), range(1, len(faces))))
@@ -70,7 +74,7 @@ def trace_curve(mesh, faces, bary, closed=False):
         start = _touching(incidence, T, neighbours, faces[ia], bary[ia])
         goal = _touching(incidence, T, neighbours, faces[ib], bary[ib])
         if not start & goal:
-            for f, b in _walk(V, T, neighbours, normals, start, goal, pa, pb, (ia, ib)):
+            for f, b in _walk(V, T, neighbours, normals, start, goal, pa, pb, (ia, ib), on_plane):
                 out_f.append(f)
                 out_b.append(b)
                 chain.append(len(out_f) - 1)
@@ -78,9 +82,10 @@ def trace_curve(mesh, faces, bary, closed=False):
     return np.asarray(out_f, dtype=np.int64), np.asarray(out_b), chain
 
 
-def _walk(V, T, neighbours, normals, start, goal, pa, pb, names):
+def _walk(V, T, neighbours, normals, start, goal, pa, pb, names, on_plane):
     """Edge crossings [(face, bary)] of a plane section from pa (on the faces ``start``) to pb: the
-    plane through both that contains their faces' mean normal, or else either point's normal."""
+    plane through both that contains their faces' mean normal, or else either point's normal; the
+    vertices within ``on_plane`` of it lie on it."""
     d = pb - pa
     tiny = 1e-9 * np.linalg.norm(d)
     upright = False
@@ -90,7 +95,9 @@ def _walk(V, T, neighbours, normals, start, goal, pa, pb, names):
         if np.linalg.norm(m) <= 1e-12 * np.linalg.norm(d) * np.linalg.norm(normal):
             upright = True
             continue
-        out = _section(V, T, neighbours, start, goal, pa, d, (V - pa) @ m, tiny)
+        phi = (V - pa) @ m
+        phi[np.abs(phi) <= on_plane * np.linalg.norm(m)] = 0.0
+        out = _section(V, T, neighbours, start, goal, pa, d, phi, tiny)
         if out is not None:
             return out
     if upright:
