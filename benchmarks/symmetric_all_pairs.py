@@ -2,6 +2,7 @@
 
     python benchmarks/symmetric_all_pairs.py --cache /tmp/stopping            # rho = 8 L
     python benchmarks/symmetric_all_pairs.py --cache /tmp/stopping --rho 4 8 16
+    python benchmarks/symmetric_all_pairs.py --beside-package cat_rr --iterations 500
 
 A dense numpy prototype of a 2-block ADMM for Algorithm 2's problem, not the package's
 splitting: U is symmetric with a zero diagonal by construction, only the columns' gradients
@@ -24,6 +25,13 @@ symmetric matrices, warm-started from the previous U and stopped when the residu
 dropped by ``--inner-tol``, preconditioned by a tensor-product V-cycle (:class:`TensorMultigrid`);
 the table then also counts the PCG iterations, beside the package's own run at accuracy 0.005
 and 0.002 (its ADMM iterations, its one-sided PCG iterations summed over them, its error).
+
+``--beside-package MESH`` compares on a shared mesh too large for an exact minimizer (cat_rr, 1,949
+vertices): the package in float32 at its defaults and at accuracy 0.005, and ``--iterations`` of
+the exact U-step at rho = 8 L, each row with its distance to the package's 0.005 run (max, mean
+and 99th percentile of |U - U_0.005| in % of max U_0.005), the pair where the max falls, the
+objective -a^T U a + alpha sum_j a_j U_j^T W U_j, max |grad U| and the share of (element, column)
+pairs above 1.001. Writes benchmarks/results/symmetric_beside_package.csv.
 """
 
 import argparse
@@ -41,6 +49,7 @@ import scipy.sparse as sp
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
+import meshes  # noqa: E402
 import stopping  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
@@ -239,16 +248,62 @@ def package_rows(mesh, alpha_hat, exact):
     return out
 
 
+def matrix_row(name, U, reference, operators, alpha_hat):
+    """The --beside-package columns of one matrix U (n, n) against ``reference``."""
+    U, reference = np.asarray(U, dtype=np.float64), np.asarray(reference, dtype=np.float64)
+    a, top = operators.vertex_volumes, reference.max()
+    E = np.abs(U - reference) / top
+    i, j = np.unravel_index(E.argmax(), E.shape)
+    energy = alpha_hat * operators.length_scale * float(np.einsum("ij,ij->j", U, operators.stiffness @ U) @ a)
+    g = np.linalg.norm((operators.grad @ U).reshape(-1, 3, U.shape[1]), axis=1)
+    return dict(run=name, max_pct=round(100 * E.max(), 3), mean_pct=round(100 * E.mean(), 4),
+                p99_pct=round(100 * np.percentile(E, 99), 3), pair=f"{i}-{j}", u_pair=round(float(U[i, j]), 4),
+                reference_pair=round(float(reference[i, j]), 4), objective=round(float(energy - a @ U @ a), 6),
+                max_gradient=round(float(g.max()), 4), steep_share=float(np.mean(g > 1.001)))
+
+
+def beside_package(name, iterations, alpha_hat=0.03):
+    """Rows of --beside-package: the package at accuracy 0.005 and at its defaults, the exact U-step."""
+    mesh = meshes.shared_mesh(name)
+    operators = wrd.build_operators(mesh)
+    runs = {}
+    for label, accuracy in (("package accuracy 0.005", 0.005), ("package defaults", None)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+            res = wrd.AllPairsSolver(mesh, alpha_hat, dtype="float32").solve(accuracy=accuracy)
+        runs[label] = (res.distance, dict(iterations=res.iterations, converged=res.converged,
+                                          estimate_pct=round(100 * res.error_estimate, 3), seconds=round(res.seconds, 1)))
+    prototype = SymmetricADMM(mesh, alpha_hat)
+    t0 = time.perf_counter()
+    for U, _, _ in itertools.islice(prototype.iterates(8.0 * prototype.L), iterations):
+        pass
+    runs["symmetric exact U-step, rho 8 L"] = (0.5 * (U + U.T), dict(iterations=iterations, converged=None, estimate_pct=None,
+                                                                   seconds=round(time.perf_counter() - t0, 1)))
+    reference = runs["package accuracy 0.005"][0]
+    return [dict(mesh=name, n=mesh.n_vertices, **info, **matrix_row(label, U, reference, operators, alpha_hat))
+            for label, (U, info) in runs.items()]
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--cache", required=True, help="folder of the exact minimizers (benchmarks/stopping.py --pairs)")
+    parser.add_argument("--cache", default=None, help="folder of the exact minimizers (benchmarks/stopping.py --pairs)")
     parser.add_argument("--rho", type=float, nargs="+", default=[8.0], help="fixed penalties, in units of L")
     parser.add_argument("--max-iterations", type=int, default=4000)
     parser.add_argument("--u-step", choices=("exact", "multigrid"), default="exact",
                         help="exact: eigenvectors; multigrid: warm-started tensor-product multigrid PCG")
     parser.add_argument("--inner-tol", type=float, default=0.1, help="the multigrid U-step's residual reduction")
     parser.add_argument("--output", default=None, help="CSV (default: benchmarks/results/symmetric_all_pairs[_multigrid].csv)")
+    parser.add_argument("--beside-package", metavar="MESH", default=None,
+                        help="compare with the package on this shared mesh instead (no --cache needed)")
+    parser.add_argument("--iterations", type=int, default=500, help="with --beside-package: exact U-step iterations")
     args = parser.parse_args()
+    if args.beside_package:
+        rows = beside_package(args.beside_package, args.iterations)
+        write_csv(rows, args.output or os.path.join(HERE, "results", "symmetric_beside_package.csv"))
+        print(markdown_table(rows))
+        return
+    if args.cache is None:
+        parser.error("--cache is required without --beside-package")
     multigrid = args.u_step == "multigrid"
     output = args.output or os.path.join(HERE, "results", "symmetric_all_pairs" + ("_multigrid" if multigrid else "") + ".csv")
     rows = []
