@@ -67,7 +67,7 @@ def run(device, quick):
     rows = []
     spot = wrd.load_mesh(SPOT)
     solver = wrd.DistanceSolver(spot, 0.05, device=device)
-    times, res = [], None
+    times = []
     for _ in range(3):
         t = time.perf_counter()
         res = solver.solve([2272])

@@ -16,10 +16,15 @@ ROUNDING = {"float64": 5e-8, "float32": 1e-4}
 """Largest difference between two CUDA runs of one problem, in units of the largest value."""
 
 
+def on_cuda(device):
+    """Whether ``device`` ("cpu", "cuda", "cuda:1", ...) is a CUDA device."""
+    return str(device).startswith("cuda")
+
+
 def assert_same_run(actual, desired, device, dtype="float64"):
     """Equal on the CPU; within ROUNDING[dtype] max |desired| on CUDA."""
     actual, desired = np.asarray(actual), np.asarray(desired)
-    if str(device).startswith("cuda"):
+    if on_cuda(device):
         np.testing.assert_allclose(actual, desired, rtol=0, atol=ROUNDING[dtype] * np.abs(desired).max())
     else:
         np.testing.assert_array_equal(actual, desired)
@@ -27,4 +32,4 @@ def assert_same_run(actual, desired, device, dtype="float64"):
 
 def same_count(a, b, device):
     """Iteration counts of the same run: equal on the CPU, within one on CUDA."""
-    return a == b if not str(device).startswith("cuda") else abs(int(a) - int(b)) <= 1
+    return abs(int(a) - int(b)) <= 1 if on_cuda(device) else a == b

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..tolerances import tolerances
+from .operators import mean_edge_length
 from .surface_points import Incidence, snapped
 
 __all__ = ["trace_curve", "face_neighbours"]
@@ -63,7 +64,7 @@ def trace_curve(mesh, faces, bary, closed=False):
 
     normals = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    on_plane = tolerances.point_snap * np.linalg.norm(V[T] - V[T[:, [1, 2, 0]]], axis=2).mean()
+    on_plane = tolerances.point_snap * mean_edge_length(V, T)
     out_f, out_b = list(faces), list(bary)
     chain = [0]
     pairs = list(zip(range(len(faces) - 1), range(1, len(faces))))

@@ -103,6 +103,12 @@ def element_diameters(vertices, elements):
     return np.max([np.linalg.norm(P[:, a] - P[:, b], axis=1) for a in range(k) for b in range(a + 1, k)], axis=0)
 
 
+def mean_edge_length(vertices, faces):
+    """Mean over the three sides of every triangle (m, 3) of |v_a - v_b| (an interior edge counts twice)."""
+    P = vertices[faces]
+    return float(np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).mean())
+
+
 def build_operators(mesh):
     """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`.
 

@@ -18,6 +18,7 @@ from ..arguments import check_weight
 from ..errors import MeshError
 from .mesh import Mesh
 from .mesh_io import load_mesh
+from .operators import mean_edge_length
 
 __all__ = ["tetrahedralize", "interior_edge"]
 
@@ -173,8 +174,7 @@ def interior_edge(V, F, alpha_hat, shells=None, depth=None):
     """The default longest interior edge: min(mean edge of the surface (V, F), alpha_hat vol^(1/3)),
     vol the volume the closed surface encloses (cavities excluded); the mean edge alone when
     alpha_hat is None or 0."""
-    P = V[F]
-    mean_edge = float(np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).mean())
+    mean_edge = mean_edge_length(V, F)
     if not alpha_hat:
         return mean_edge
     if shells is None:
