@@ -211,5 +211,23 @@ def all_pairs_kernels(scalar, W):
         wp.atomic_add(acc, I, SX2, sx2)
         wp.atomic_add(acc, I, H2, h2)
 
+    @wp.kernel(enable_backward=False, module=module)
+    def steepness(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3),
+                  diameters: wp.array(dtype=scalar), U: wp.array2d(dtype=V), worst: wp.array(dtype=V),
+                  chunk: int, group: int, m: int):
+        """worst = max(worst, max over a chunk of elements e of (|(G U)_e| - 1)_+ diam(e)) per lane: the
+        numerator of stopping.gradient_excess (atomic max, the same on every device and in any order)."""
+        c, g = wp.tid()
+        e0, e1 = chunk_rows(c, chunk, m)
+        b0, b1 = group_blocks(g, group)
+        for b in range(b0, b1):
+            w = V()
+            for e in range(e0, e1):
+                gx, gy, gz = element_gradient(elements, basis, U, e, b, 3)
+                g2 = f.norm2(gx, gy, gz)
+                for l in range(W):
+                    w[l] = wp.max(w[l], (wp.sqrt(g2[l]) - one) * diameters[e])
+            wp.atomic_max(worst, b, w)
+
     return types.SimpleNamespace(element_step=element_step, vertex_step=vertex_step,
-                                 consensus_step=consensus_step, V=V, V3=V3)
+                                 consensus_step=consensus_step, steepness=steepness, V=V, V3=V3)

@@ -6,7 +6,7 @@ import types
 import warp as wp
 
 __all__ = ["lane_type", "lane_width", "thread_span", "row_dim", "chunk_rows", "group_blocks", "ALL_BLOCKS",
-           "lane_kernels", "SCALARS"]
+           "CUDA_THREADS", "lane_kernels", "SCALARS"]
 
 SCALARS = {"float32": wp.float32, "float64": wp.float64}
 
@@ -31,22 +31,28 @@ def lane_type(scalar, width):
 ALL_BLOCKS = 32
 """From this many column blocks per row a CPU thread takes one row of all of them (:func:`thread_span`)."""
 
+CUDA_THREADS = 1 << 20
+"""About this many threads per CUDA launch over rows x blocks (:func:`thread_span`): a few waves of a
+large GPU, each thread summing a run of rows before its one atomic add."""
 
-def thread_span(device, blocks=1, row_blocks=None):
-    """(rows, group): the rows and column blocks each thread of a launch handles, over
+
+def thread_span(device, blocks=1, row_blocks=None, rows=None):
+    """(rows per thread, group): the rows and column blocks each thread of a launch handles, over
     ``blocks`` active column blocks of arrays whose rows hold ``row_blocks`` blocks (default
     ``blocks``); the launch's second dimension is blocks // group.
 
-    One row of one block on CUDA. On the CPU one core runs the launch thread by thread:
-    128 rows of one block per thread (one atomic per chunk) for short rows; for long rows
-    (>= ``ALL_BLOCKS`` blocks: the all-pairs state, 122 on cat) the consecutive rows of one
+    On CUDA one block per thread, and ``rows`` x blocks / CUDA_THREADS consecutive rows (at least
+    one; one without ``rows``): threads enough to fill the GPU, and per-lane sums added to their
+    accumulators once per run of rows instead of once per row. On the CPU one core runs the launch
+    thread by thread: 128 rows of one block per thread (one atomic per chunk) for short rows; for
+    long rows (>= ``ALL_BLOCKS`` blocks: the all-pairs state, 122 on cat) the consecutive rows of one
     block lie row_blocks x 64 bytes apart, so one thread takes one row of every active block,
     a contiguous run of memory.
     The sums over rows are added in another order in the two layouts, so the choice depends
     on the arrays' layout alone, not on how many of their blocks a launch covers.
     """
     if wp.get_device(device).is_cuda:
-        return 1, 1
+        return (1 if rows is None else max(1, rows * blocks // CUDA_THREADS)), 1
     return (1, blocks) if (blocks if row_blocks is None else row_blocks) >= ALL_BLOCKS else (128, 1)
 
 

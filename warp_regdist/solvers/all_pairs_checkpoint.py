@@ -100,7 +100,7 @@ def checkpoint_shapes(n, m, dtype):
     shapes = {name: state for name in STATE_ROWS + ("change_snapshot",)}
     shapes.update(v=((m, 3, nb, W), dtype), iteration=((), "int64"), rho_v=((), f8), cg_iterations=((), "int64"),
                   seconds=((), f8), penalties=((2,), f8), cols=((3, nb * W), f8), pairs=((5,), f8),
-                  change=((2,), f8), residuals=((7,), f8), tolerance=((7,), f8), final=((), "bool"))
+                  change=((2,), f8), excess=((), f8), residuals=((7,), f8), tolerance=((7,), f8), final=((), "bool"))
     return shapes
 
 

@@ -71,7 +71,8 @@ class PairsRun:
         self.seconds_before = 0.0
         # U as one column: its change test (snapshot, the last window's change, the change to come)
         self.change_test = ExtrapolatedChangeTest(settings.change_window, settings.eps_change, 1)
-        # excess(U (n, n)): stopping.gradient_excess, of the U of the last change test
+        # stopping.gradient_excess of the U of the last change test (measured on the device); excess(U (n, n)):
+        # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
 
     def restore(self, saved):
@@ -91,7 +92,11 @@ class PairsRun:
             window_change, change = saved["change"]
             self.change_test.restore(dict(snapshot=saved["change_snapshot"].reshape(-1, 1),
                                           window_change=[window_change], change=[change]))
-            self._measure_excess(self.change_test.snapshot)
+            if "excess" in saved:
+                self.last_excess = float(saved["excess"])
+            elif self.settings.eps_excess < math.inf:  # a checkpoint without it: measured on the host
+                n = self.state.n
+                self.last_excess = self.excess(self.change_test.snapshot.reshape(n, -1)[:, :n])
 
     def warm_start(self, saved):
         """Start from the iterate of checkpoint ``saved`` (another problem on this mesh): X, U, H, v
@@ -120,7 +125,8 @@ class PairsRun:
         change = self.change_test.state()
         if change["snapshot"] is not None:  # U's lane layout (n, nb, W)
             data.update(change_snapshot=change["snapshot"].reshape(st.n, st.setup.nb, st.setup.W),
-                        change=np.array([change["window_change"][0], change["change"][0]]))
+                        change=np.array([change["window_change"][0], change["change"][0]]),
+                        excess=np.array(self.last_excess))
         path = os.fspath(self.checkpoint)
         tmp = f"{path}.tmp{os.getpid()}"
         try:
@@ -175,18 +181,13 @@ class PairsRun:
             self.progress(it, res, eps, self._elapsed(), self.memory)
         if self.change_test.due(it):
             self.change_test.update(st.view("U").reshape(-1, 1))
-            self._measure_excess(self.change_test.snapshot)
+            if tol.eps_excess < math.inf:
+                self.last_excess = st.gradient_excess(float(np.max(self.change_test.snapshot)))
         if np.all(res <= eps) and self.change_test.settled[0] and self.last_excess <= tol.eps_excess:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
             return True
         return False
-
-    def _measure_excess(self, snapshot):
-        """last_excess: the steepness test's measure of the U in ``snapshot`` (the change test's, lanes flattened)."""
-        if self.settings.eps_excess < math.inf:
-            n = self.state.n
-            self.last_excess = self.excess(snapshot.reshape(n, -1)[:, :n])
 
     def advance(self, it, count):
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""

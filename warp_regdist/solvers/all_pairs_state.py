@@ -6,6 +6,7 @@ one part's arrays, PCG and launches (``_Part``), and the whole state with its wo
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 
 import numpy as np
@@ -15,6 +16,7 @@ import warp as wp
 from ..kernels.all_pairs import all_pairs_kernels
 from ..kernels.element_core import DY2, G2, R2, S2, Z2
 from ..kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
+from ..geometry.operators import element_diameters
 from .multigrid import smoothed_aggregation
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
@@ -105,6 +107,7 @@ class _Setup:
         self.dtype = dtype
         self.elements = mesh.elements.astype(np.int32)
         self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
+        self.diameters = element_diameters(mesh.vertices, mesh.elements)
         self.divergence = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()  # D = G^T M_F
         self.stiffness = ops.stiffness.tocsr()
         self.A, self.L = ops.total_volume, ops.length_scale
@@ -128,7 +131,8 @@ class _Setup:
         """Shapes and numpy dtypes of the iteration's state (lane axis last)."""
         n, m, nb, W, dt = self.n, self.m, self.nb, self.W, np.dtype(self.dtype)
         specs = {name: ((n, nb, W), dt) for name in STATE_ROWS}
-        specs.update(v=((m, 3, nb, W), dt), rhs=((n, nb, W), dt), acc=((5, nb, W), dt), acc_pairs=((nb, 5), dt))
+        specs.update(v=((m, 3, nb, W), dt), rhs=((n, nb, W), dt), acc=((5, nb, W), dt), acc_pairs=((nb, 5), dt),
+                     steep=((nb, W), dt))
         return specs
 
 
@@ -152,10 +156,31 @@ def _free_entries(n, b0, b1, W, V, device):
     return mask
 
 
+def _lane_view(a, width):
+    """``a`` (..., nb) of W-lane vectors seen as (..., nb W / width) vectors of ``width`` lanes: the same
+    memory, not a copy (the caller keeps ``a`` alive)."""
+    W = a.dtype._length_
+    if width == W:
+        return a
+    return wp.array(ptr=a.ptr, dtype=lane_type(a.dtype._wp_scalar_type_, width),
+                    shape=a.shape[:-1] + (a.shape[-1] * W // width,),
+                    strides=a.strides[:-1] + (a.strides[-1] * width // W,), device=a.device)
+
+
+def lanes_per_thread(device, W):
+    """Lanes each thread of the lane-wise steps takes (:class:`_Part`): W on the CPU, 1 on CUDA."""
+    return 1 if device.is_cuda else W
+
+
 class _Part:
     """Part t of one iteration: column blocks [b_t, b_t+1) of the vertex, X- (its own PCG) and
     element steps, and consensus tile rows [i_t, i_t+1). Built in the calling process (t = 0)
-    or in a worker process on the same shared state."""
+    or in a worker process on the same shared state.
+
+    The state is stored in lanes of W columns (the consensus step transposes W x W tiles). The
+    lane-wise steps (vertex, X, element) take W lanes per thread on the CPU (SIMD within a core)
+    and one column per thread on CUDA, through views of the same memory: the threads of a warp
+    then read consecutive numbers and add to consecutive accumulators."""
 
     def __init__(self, setup, arrays, t):
         sc = SCALARS[setup.dtype]
@@ -167,33 +192,44 @@ class _Part:
         self.scalar = sc
         dev = arrays["X"].device
         n, m, nb, W = setup.n, setup.m, setup.nb, setup.W
-        k = all_pairs_kernels(sc, W)
+        width = lanes_per_thread(dev, W)
+        k, lane_step = all_pairs_kernels(sc, W), all_pairs_kernels(sc, width)
         b0, b1 = setup.blocks[t], setup.blocks[t + 1]
         i0, i1 = setup.rows[t], setup.rows[t + 1]
         cols = slice(b0, b1)
-        span = thread_span(dev, b1 - b0, nb)
+        lanes = (b1 - b0) * W // width  # the lane-wise launches' blocks
+
+        def view(name, *index):
+            return _lane_view(arrays[name][(*index, cols)], width)
+
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes
         self._arrays = dict(
             elements=wp.array(setup.elements, dtype=wp.int32, device=dev),
             basis=wp.array(setup.basis, dtype=wp.types.vector(3, sc), device=dev),
             volumes=wp.array(setup.volumes, dtype=sc, device=dev),
+            diameters=wp.array(setup.diameters, dtype=sc, device=dev),
             vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
             lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
             mask=_free_entries(n, b0, b1, W, V, dev))
         a = self._arrays
-        self.mask = a["mask"]
-        self.X, self.rhs = arrays["X"][:, cols], arrays["rhs"][:, cols]
+        self.mask = _lane_view(a["mask"], width)
+        self.X, self.rhs = view("X", slice(None)), view("rhs", slice(None))
         # each process launches from one thread, so on the CPU the CG loop can be one captured graph
-        self.pcg = BatchedPCG(setup.K_mid, sc, W, b1 - b0, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
-        self.vertex = wp.launch(k.vertex_step, row_dim(n, span, b1 - b0), device=dev, record_cmd=True,
+        self.pcg = BatchedPCG(setup.K_mid, sc, width, lanes, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
+        span = thread_span(dev, lanes, nb * W // width, n)
+        self.vertex = wp.launch(lane_step.vertex_step, row_dim(n, span, lanes), device=dev, record_cmd=True,
                                 inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
-                                + [arrays[name][:, cols] for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
+                                + [view(name, slice(None)) for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
                                 + [*span, n])
-        self.element = wp.launch(k.element_step, row_dim(m, span, b1 - b0), device=dev, record_cmd=True,
-                                 inputs=[a["elements"], a["basis"], a["volumes"], self.X, arrays["v"][:, :, cols],
-                                         sc(1.0), sc(1.0), sc(setup.relaxation), arrays["DZ_acc"][:, cols],
-                                         arrays["DY_acc"][:, cols], arrays["acc"][:, cols], *span, m])
+        span = thread_span(dev, lanes, nb * W // width, m)
+        self.element = wp.launch(lane_step.element_step, row_dim(m, span, lanes), device=dev, record_cmd=True,
+                                 inputs=[a["elements"], a["basis"], a["volumes"], self.X, view("v", slice(None), slice(None)),
+                                         sc(1.0), sc(1.0), sc(setup.relaxation), view("DZ_acc", slice(None)),
+                                         view("DY_acc", slice(None)), view("acc", slice(None)), *span, m])
+        self.steep = wp.launch(lane_step.steepness, row_dim(m, span, lanes), device=dev, record_cmd=True,
+                               inputs=[a["elements"], a["basis"], a["diameters"], view("U", slice(None)), view("steep"),
+                                       *span, m])
         self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
             arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
             arrays["acc_pairs"], i0, n]) if i1 > i0 else None
@@ -214,6 +250,9 @@ class _Part:
         self.element.set_param_by_name("rho", self.scalar(rho))
         self.element.launch()
         return it
+
+    def steepness(self):
+        self.steep.launch()
 
     def consensus_step(self, rho2):
         if self.consensus is not None:  # None: this part has no tile rows
@@ -298,6 +337,17 @@ class SymmetricADMM:
         acc = self.arrays["acc"].numpy().reshape(5, -1)
         pairs = self.arrays["acc_pairs"].numpy().astype(np.float64).sum(axis=0)  # fixed order: tile rows
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
+
+    def gradient_excess(self, top):
+        """:func:`~warp_regdist.solvers.stopping.gradient_excess` of U, whose max is ``top``, on the device:
+        max over elements e and columns j of (|(G U_j)_e| - 1)_+ diam(e) / top (0 where top is 0, NaN
+        where it is not finite)."""
+        if not math.isfinite(top):
+            return math.nan
+        self.arrays["steep"].zero_()
+        self._each("steepness")
+        worst = float(self.arrays["steep"].numpy().max())
+        return worst / top if top > 0 else 0.0
 
     def divergences_from_element_state(self):
         """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:

@@ -289,11 +289,11 @@ class MultigridPreconditioner:
     def record(self, r, z, blocks):
         """Recorded launches computing z = M_0 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
         k, dev, sizes = self.kernels, self.device, self.sizes
-        span = thread_span(dev, blocks)
         ys, zs = [r] + self.y, [z] + self.z
         levels = len(sizes)
 
-        def rec(kernel, level, *inputs, span=span):
+        def rec(kernel, level, *inputs, span=None):
+            span = span or thread_span(dev, blocks, rows=sizes[level])
             return wp.launch(kernel, row_dim(sizes[level], span, blocks), device=dev, record_cmd=True,
                              inputs=[*inputs, *span, sizes[level]])
 
@@ -301,7 +301,7 @@ class MultigridPreconditioner:
         if levels > 1:
             # on the CPU one thread per block walks all coarse rows, its column of y staying in the L1 cache
             launches.append(rec(k.mg_coarse, levels - 1, self.inverse, ys[-1], zs[-1],
-                                span=span if dev.is_cuda else (sizes[-1], 1)))
+                                span=None if dev.is_cuda else (sizes[-1], 1)))
         for l in range(max(levels - 2, 0), -1, -1):
             launches.append(rec(k.mg_prolong, l, *self.smoothers[l], *self.prolongations[l], ys[l],
                                 zs[l + 1] if levels > 1 else r, zs[l]))

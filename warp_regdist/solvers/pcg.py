@@ -67,7 +67,7 @@ class JacobiPreconditioner:
 
     def record(self, r, z, blocks):
         """Recorded launches computing z = D^-1 r on column blocks 0..blocks-1 of (n, nb) ``r``, ``z``."""
-        span = thread_span(self.device, blocks)
+        span = thread_span(self.device, blocks, rows=self.n)
         return [wp.launch(self.kernel, row_dim(self.n, span, blocks), device=self.device, record_cmd=True,
                           inputs=[self.dinv, r, z, *span, self.n])]
 
@@ -222,7 +222,7 @@ class BatchedPCG:
         if self._program is None or self._program[0] != key:
             k, n, dev, blocks = self.kernels, self.n, self.device, self.blocks
             state = (self.counters, self.running)
-            span = thread_span(dev, blocks, x.strides[0] // x.strides[1])  # the caller's row layout
+            span = thread_span(dev, blocks, x.strides[0] // x.strides[1], n)  # the caller's row layout
             dim = row_dim(n, span, blocks)
 
             def rec(kernel, dim, *args):
