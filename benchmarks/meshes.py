@@ -41,3 +41,21 @@ def cube_sphere(N):
     V = P[first]
     V /= np.linalg.norm(V, axis=1, keepdims=True)
     return wrd.Mesh(V, inv.ravel()[F])
+
+
+def subdivided_decimated(name, vertices, levels=2, aggressiveness=3):
+    """shared mesh ``name`` Loop-subdivided ``levels`` times, then decimated to about ``vertices`` vertices by
+    fast-simplification (its quadric decimation at ``aggressiveness``, 3 of 0-10: smallest angle 5.3 degrees on
+    cat_rr to 10,099 vertices, where 7 leaves 0.6): a large irregular mesh of a real shape; None without
+    ../shared."""
+    import fast_simplification
+    import trimesh
+
+    mesh = shared_mesh(name)
+    if mesh is None:
+        return None
+    V, F = trimesh.remesh.subdivide_loop(np.array(mesh.vertices), np.array(mesh.elements), iterations=levels)
+    V, F = fast_simplification.simplify(np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                                        target_reduction=1 - vertices / len(V), agg=aggressiveness)
+    merged = trimesh.Trimesh(V, F, process=True)
+    return wrd.Mesh(np.array(merged.vertices, dtype=np.float64), np.array(merged.faces, dtype=np.int64))

@@ -8,7 +8,7 @@ are built by cached factories per (scalar, W), one Warp module per family and ty
 each is compiled once and then loaded from the kernel cache.
 
 Each thread of a row loop handles ``chunk`` consecutive rows of ``group`` column blocks and
-adds its partial sums per block with a single atomic: one row of one block on CUDA; on the
-CPU 128 rows of one block, or one row of every block when there are many
-(``lanes.thread_span``).
+adds its partial sums per block with a single atomic: on CUDA a run of rows sized to give a
+launch about 2^20 threads; on the CPU 128 rows of one block, or one row of every block when
+there are many (``lanes.thread_span``).
 """
