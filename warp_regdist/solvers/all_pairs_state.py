@@ -156,14 +156,12 @@ def _free_entries(n, b0, b1, W, V, device):
     return mask
 
 
-def _lane_view(a, width):
-    """``a`` (..., nb) of W-lane vectors seen as (..., nb W / width) vectors of ``width`` lanes: the same
-    memory, not a copy (the caller keeps ``a`` alive)."""
-    W = a.dtype._length_
+def _lane_view(a, scalar, W, width):
+    """``a`` (..., nb) of W-lane ``scalar`` vectors seen as (..., nb W / width) vectors of ``width`` lanes:
+    the same memory, not a copy (the caller keeps ``a`` alive)."""
     if width == W:
         return a
-    return wp.array(ptr=a.ptr, dtype=lane_type(a.dtype._wp_scalar_type_, width),
-                    shape=a.shape[:-1] + (a.shape[-1] * W // width,),
+    return wp.array(ptr=a.ptr, dtype=lane_type(scalar, width), shape=a.shape[:-1] + (a.shape[-1] * W // width,),
                     strides=a.strides[:-1] + (a.strides[-1] * width // W,), device=a.device)
 
 
@@ -200,7 +198,7 @@ class _Part:
         lanes = (b1 - b0) * W // width  # the lane-wise launches' blocks
 
         def view(name, *index):
-            return _lane_view(arrays[name][(*index, cols)], width)
+            return _lane_view(arrays[name][(*index, cols)], sc, W, width)
 
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes
@@ -213,7 +211,7 @@ class _Part:
             lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
             mask=_free_entries(n, b0, b1, W, V, dev))
         a = self._arrays
-        self.mask = _lane_view(a["mask"], width)
+        self.mask = _lane_view(a["mask"], sc, W, width)
         self.X, self.rhs = view("X", slice(None)), view("rhs", slice(None))
         # each process launches from one thread, so on the CPU the CG loop can be one captured graph
         self.pcg = BatchedPCG(setup.K_mid, sc, width, lanes, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
