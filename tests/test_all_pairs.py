@@ -358,3 +358,15 @@ def test_one_column_per_thread_gives_the_same_iterates(bumpy42, monkeypatch):
     assert widths == [8]  # float64 lanes of 8 columns, seen as 48 columns of one
     assert columns.iterations == lanes.iterations and columns.cg_iterations == lanes.cg_iterations
     assert np.abs(columns.distance - lanes.distance).max() <= 1e-9 * lanes.distance.max()
+
+
+def test_no_obtuse_hint_without_obtuse_triangles(bumpy42):
+    """An unconverged result on a mesh whose angles are all below OBTUSE_ANGLE gets the cap's warning alone."""
+    from warp_regdist.geometry.operators import largest_angles
+
+    mesh, _ = bumpy42
+    assert largest_angles(mesh.vertices, mesh.elements).max() < wrd.solvers.all_pairs_admm.OBTUSE_ANGLE
+    with pytest.warns(wrd.ConvergenceWarning) as caught:
+        res = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=30)
+    assert not res.converged and res.gradient_excess > 0.005
+    assert [str(w.message)[:40] for w in caught] == ["all-pairs ADMM did not converge in 30 it"]

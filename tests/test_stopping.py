@@ -88,6 +88,44 @@ def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
     assert 0.0 < gradient_excess(ops.grad, diam, steep) <= expected
 
 
+def test_steepest_element_is_where_the_excess_is_reached(cat80):
+    from warp_regdist.geometry.operators import element_diameters
+    from warp_regdist.solvers.stopping import gradient_excess, steepest_element
+
+    mesh, refs = cat80
+    ops = wrd.build_operators(mesh)
+    diam = element_diameters(mesh.vertices, mesh.elements)
+    steep = refs[0.03] * 1.25
+    excess, e, j = steepest_element(ops.grad, diam, steep, block=7)
+    assert excess == gradient_excess(ops.grad, diam, steep) > 0.0
+    g = np.linalg.norm((ops.grad @ steep[:, j]).reshape(-1, 3), axis=1)
+    assert excess == pytest.approx((g[e] - 1.0) * diam[e] / steep.max(), rel=1e-12)
+    assert steepest_element(ops.grad, diam, 0.5 * refs[0.03]) == (0.0, -1, -1)  # 1/2-Lipschitz: no excess
+
+
+def test_largest_angles_of_known_triangles():
+    from warp_regdist.geometry.operators import largest_angles
+
+    c, s = np.cos(np.radians(120.0)), np.sin(np.radians(120.0))
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [c, s, 0], [0.5, np.sqrt(3) / 2, 0]])
+    F = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])  # right, 120 degrees at vertex 0, equilateral
+    assert largest_angles(V, F) == pytest.approx([90.0, 120.0, 60.0], abs=1e-9)
+
+
+def test_unconverged_all_pairs_names_its_obtuse_steepest_triangle(cat80):
+    """cat80 has 17 triangles with an angle of 120 degrees or more; after 150 iterations its steepest column
+    climbs across one of them, and the warning says which, with its angle."""
+    mesh, _ = cat80
+    with pytest.warns(wrd.ConvergenceWarning) as caught:
+        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1)
+    hints = [str(w.message) for w in caught if "obtuse" in str(w.message)]
+    assert not res.converged and res.gradient_excess > 0.005
+    assert hints == [f"all pairs: column 78 climbs {res.gradient_excess:.3g} of max U above unit speed across "
+                     "triangle 69, whose largest angle is 157 degrees: the iterations settle slowly at obtuse "
+                     "triangles, and a mesh without them (Delaunay edge flips, remeshing) converges sooner "
+                     "(docs/guides/all-pairs.md)"]
+
+
 def test_all_pairs_reads_its_settings_from_tolerances(cat80):
     mesh, _ = cat80
     with wrd.tolerances.override(pairs_eps_change=0.0):

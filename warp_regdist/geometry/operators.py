@@ -103,6 +103,15 @@ def element_diameters(vertices, elements):
     return np.max([np.linalg.norm(P[:, a] - P[:, b], axis=1) for a in range(k) for b in range(a + 1, k)], axis=0)
 
 
+def largest_angles(vertices, faces):
+    """(m,) largest interior angle of each triangle (m, 3), in degrees: the angle opposite its longest side."""
+    P = vertices[faces]
+    a = np.roll(P, 1, axis=1) - P   # corner c: sides to the previous and the next corner
+    b = np.roll(P, -1, axis=1) - P
+    cos = np.einsum("mcd,mcd->mc", a, b) / (np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max(axis=1)
+
+
 def mean_edge_length(vertices, faces):
     """Mean over the three sides of every triangle (m, 3) of |v_a - v_b| (an interior edge counts twice)."""
     P = vertices[faces]

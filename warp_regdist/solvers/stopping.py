@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 __all__ = ["tolerance", "dual_scale", "cg_tolerance", "ChangeTest", "ExtrapolatedChangeTest", "vertex_extrapolation",
-           "gradient_excess", "ESTIMATE_RATE_CAP"]
+           "gradient_excess", "steepest_element", "ESTIMATE_RATE_CAP"]
 
 ESTIMATE_RATE_CAP = 0.95
 """The largest rate per window at which :func:`vertex_extrapolation` extends a vertex's change
@@ -80,14 +80,23 @@ def gradient_excess(grad, diameters, u, block=64):
     be far from settled where its residuals and its change have become small (docs/method.md
     section 8).
     """
+    return steepest_element(grad, diameters, u, block)[0]
+
+
+def steepest_element(grad, diameters, u, block=64):
+    """(:func:`gradient_excess` of u, e, j): the excess and the element e and column j where it is
+    reached ((-1, -1) where it is 0 or NaN)."""
     m = diameters.size
-    top, worst = float(u.max(initial=0.0)), 0.0
+    top, worst, where = float(u.max(initial=0.0)), 0.0, (-1, -1)
     if not math.isfinite(top):
-        return math.nan
-    for j in range(0, u.shape[1], block):
-        g = np.square((grad @ np.asarray(u[:, j:j + block], dtype=np.float64)).reshape(m, 3, -1)).sum(axis=1)
-        worst = max(worst, float(((np.sqrt(g.max(axis=1)) - 1.0) * diameters).max(initial=0.0)))
-    return worst / top if top > 0 else 0.0
+        return math.nan, -1, -1
+    for j0 in range(0, u.shape[1], block):
+        g = np.sqrt(np.square((grad @ np.asarray(u[:, j0:j0 + block], dtype=np.float64)).reshape(m, 3, -1)).sum(axis=1))
+        over = (g - 1.0) * diameters[:, None]
+        e, j = np.unravel_index(np.argmax(over), over.shape)
+        if over[e, j] > worst:
+            worst, where = float(over[e, j]), (int(e), j0 + int(j))
+    return (worst / top if top > 0 else 0.0), *where
 
 
 class ChangeTest:
