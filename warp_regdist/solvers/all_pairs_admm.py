@@ -261,7 +261,9 @@ class AllPairsSolver:
             current iterate with ``converged=False`` and ``interrupted=True`` (and the checkpoint is
             written); a second Ctrl-C raises KeyboardInterrupt at once. A result whose |grad| exceeds
             ``tolerances.max_gradient`` on some element and column is reported with ``converged=False``
-            and a ConvergenceWarning, whatever its residuals (a consensus not yet settled).
+            and a ConvergenceWarning, whatever its residuals (a consensus not yet settled). An
+            unconverged result whose gradient excess lies on a triangle with an angle of at least
+            ``OBTUSE_ANGLE`` degrees gets a second ConvergenceWarning naming that triangle.
 
         Raises
         ------
