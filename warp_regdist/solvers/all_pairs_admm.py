@@ -325,7 +325,8 @@ class AllPairsSolver:
         ConvergenceWarning names the triangle of an unconverged result whose excess is above
         ``eps_excess`` when that triangle has an angle of OBTUSE_ANGLE or more."""
         res.gradient_excess, element, column = self._steepest(res.distance)
-        steepest, limit = np.max(self.operators.max_gradient(res.distance)), tolerances.max_gradient
+        limit = tolerances.max_gradient
+        steepest = np.max(self.operators.max_gradient(res.distance)) if res.converged else None
         if res.converged and not steepest <= limit:
             res.converged = False
             warnings.warn(f"all-pairs ADMM returned distances that break |grad U| <= 1 (max |grad U| {steepest:.3g}, "
