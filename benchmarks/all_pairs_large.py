@@ -23,8 +23,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 import meshes  # noqa: E402
+from devices import device_memory_gb  # noqa: E402
 import numpy as np  # noqa: E402
-import warp as wp  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 from warp_regdist.arguments import parse_device  # noqa: E402
@@ -60,7 +60,7 @@ def main():
                converged=bool(res.converged), error_estimate_pct=round(100 * res.error_estimate, 3),
                gradient_excess=round(res.gradient_excess, 4), residual_ratio=round(float(np.max(res.residuals / res.tolerance)), 3),
                memory_estimate_gb=round(res.memory_bytes / 1e9, 2),
-               device_mem_high_gb=round(wp.get_mempool_used_mem_high(device) / 1e9, 2) if device.is_cuda else None)
+               device_mem_high_gb=device_memory_gb(device))
     write_csv([row], args.out)
     print(markdown_table([row]))
     if args.rows:

@@ -39,7 +39,8 @@ SIZES = {False: dict(sphere=330, pairs_sphere=41, pairs_iterations=150),
          True: dict(sphere=40, pairs_sphere=10, pairs_iterations=60)}
 
 
-def _memory_gb(device):
+def device_memory_gb(device):
+    """The device's memory-pool high-water mark so far, GB (CUDA; None on the CPU)."""
     return round(wp.get_mempool_used_mem_high(device) / 1e9, 2) if device.is_cuda else None
 
 
@@ -56,7 +57,7 @@ def _warm(device):
 
 def _row(case, device, mesh, **columns):
     row = dict(case=case, device=str(device), device_name=device.name, vertices=mesh.n_vertices, **columns,
-               device_mem_high_gb=_memory_gb(device))
+               device_mem_high_gb=device_memory_gb(device))
     print(row, flush=True)
     return row
 
