@@ -47,13 +47,13 @@ def main():
         parser.error("needs ../shared/meshes/cat_rr.off beside the checkout")
     solver = wrd.AllPairsSolver(mesh, 0.03, device=device, dtype="float32")
 
-    def progress(it, res, eps, elapsed, memory):
-        if it % 250 == 0:
-            print(f"  iteration {it}: max residual / tolerance {np.max(res / eps):.3g}, {elapsed:.1f} s", flush=True)
+    def progress(info):
+        if info.iteration % 250 == 0:
+            print(f"  {info}", flush=True)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        res = solver.solve(max_iterations=args.max_iterations, progress=progress, checkpoint=args.checkpoint,
+        res = solver.solve(max_iterations=args.max_iterations, callback=progress, checkpoint=args.checkpoint,
                            checkpoint_seconds=args.checkpoint_seconds, resume=args.resume)
     row = dict(mesh="cat_rr subdivided, decimated", vertices=mesh.n_vertices, device=device.name, dtype="float32",
                iterations=res.iterations, seconds=round(res.seconds, 1), s_per_iteration=round(res.seconds / res.iterations, 4),

@@ -166,11 +166,11 @@ def test_symmetrization_interrupted_and_resumed(mesh, rows, tmp_path, monkeypatc
     mark = matrix_store.DiskRows._mark
     count = [0]
 
-    def interrupted_after_one_block(self, kind, block, done=True):
+    def interrupted_after_one_block(self, kind, block, done=True, rows=None):
         if kind == "symmetric" and count[0] == 1:
             raise KeyboardInterrupt
         count[0] += kind == "symmetric"
-        mark(self, kind, block, done)
+        mark(self, kind, block, done, rows)
 
     monkeypatch.setattr(matrix_store.DiskRows, "_mark", interrupted_after_one_block)
     with pytest.raises(KeyboardInterrupt):
@@ -265,7 +265,7 @@ def test_cli_matrix_bad_input(tmp_path, capsys):
 
 def test_cli_matrix_reports_unconverged_blocks(mesh_file, tmp_path, capsys):
     with wrd.tolerances.override(max_iterations=5):
-        assert main(["matrix", str(mesh_file), "--output", str(tmp_path / "D.npy"), "--chunk", "100", "--quiet"]) == 0
+        assert main(["matrix", str(mesh_file), "--output", str(tmp_path / "D.npy"), "--chunk", "100", "--quiet"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert all(line.startswith("warp-regdist: warning: ADMM ") for line in err)
     unconverged = [line for line in err if "did not converge" in line]

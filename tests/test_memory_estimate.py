@@ -26,7 +26,7 @@ with warnings.catch_warnings():
     gc.collect()
     before, during = resident(), []
     wrd.all_pairs(mesh, 0.1, device="cpu", max_iterations=2, workers=1,
-                  progress=lambda *args: during.append(resident()))
+                  callback=lambda progress: during.append(resident()))
 device_bytes, host_bytes = memory_estimate(mesh.n_vertices, mesh.n_elements, "float64", "cpu")
 print(json.dumps(dict(held=max(during) - before, device=device_bytes, host=host_bytes)))
 """

@@ -42,7 +42,7 @@ def ready():
 if {kind!r} == "all_pairs":  # the worker waits for the next call while the parent sleeps in progress
     V, F = meshes.icosphere(3, 1.0)
     wrd.all_pairs(wrd.Mesh(V, F), 0.03, dtype="float32", max_iterations=10000, workers=2, device="cpu",
-                  progress=lambda it, *a: it == 2 and ready())
+                  callback=lambda p: p.iteration == 2 and ready())
 else:  # the worker solves its part (run to max_iterations) while the parent sleeps in its own
     V, F = meshes.icosphere(4, 1.0)
     run_iterations = solver_module.run_iterations
@@ -191,8 +191,8 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
         whole = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2)
         others = _worker_pids(os.getpid())
 
-        def kill_at_eight(it, *_):
-            if it == 8:
+        def kill_at_eight(progress):
+            if progress.iteration == 8:
                 for worker in _worker_pids(os.getpid()) - others:
                     os.kill(worker, signal.SIGTERM)
                     os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)
@@ -200,7 +200,7 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
         with pytest.raises(wrd.WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGTERM; its part of the "
                                               r"work is lost \(an all-pairs run resumes from its last checkpoint\)"):
             wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, checkpoint=path,
-                          checkpoint_seconds=1e-9, progress=kill_at_eight)
+                          checkpoint_seconds=1e-9, callback=kill_at_eight)
         rest = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, resume=path)
     assert rest.iterations == whole.iterations == 20
     assert np.array_equal(rest.distance, whole.distance)

@@ -56,11 +56,14 @@ class FileLock:
         return self
 
     def release(self):
+        """Drop the lock and remove its file; never raises (an error here must not hide the one that
+        ended the run). A lock file that cannot be removed (a read-only directory) stays: it holds no
+        lock, and the next run takes it over."""
         if self._fd is None:
             return
         try:
             os.remove(self.lock_path)
-        except FileNotFoundError:
+        except OSError:
             pass
         os.close(self._fd)
         self._fd = None

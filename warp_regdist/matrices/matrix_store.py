@@ -2,11 +2,13 @@
 
 A (k, n) matrix is written in blocks of ``chunk`` consecutive rows. On disk, next to the
 matrix ``D.zarr`` (or ``D.npy``) lies the directory ``D.zarr.progress`` holding the problem's
-fingerprint (``fingerprint.json``, written before the matrix) and one empty marker file per
-block, created only after the block's rows are on disk: a block half-written by a killed run
-has no marker and is redone. An ``out`` whose fingerprint differs from the call's, or whose
-files are not what this module writes (truncated, foreign, another shape or dtype), is
-refused with a ValueError; files are read as data, never unpickled. While a run writes
+fingerprint (``fingerprint.json``, written before the matrix) and one marker file per block,
+holding the CRC-32 of its rows and created only after they are on disk: a block half-written
+by a killed run has no marker and is redone, and a resumed run first checks every finished
+block against its CRC. An ``out`` whose fingerprint differs from the call's, whose finished
+blocks changed on the disk, or whose files are not what this module writes (truncated,
+foreign, another shape or dtype, a Zarr store with codecs outside :data:`ZARR_CODECS`), is
+refused with a ValueError before any work; files are read as data, never unpickled. While a run writes
 ``D.npy`` it holds ``D.npy.lock`` (:class:`~warp_regdist.file_lock.FileLock`): a second run on
 the same path is refused.
 
@@ -22,9 +24,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import zlib
 
 import numpy as np
 
+from ..atomic_write import write_atomic
 from ..file_lock import FileLock
 
 __all__ = ["MemoryRows", "DiskRows", "NpyFile", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
@@ -123,6 +127,7 @@ class DiskRows:
             else:
                 _check_fingerprint(stored, fingerprint, self.path)
                 self.array = self._open()
+                self.verify()
         except BaseException:
             self.lock.release()
             raise
@@ -166,6 +171,7 @@ class DiskRows:
 
     def _open(self):
         if self.zarr:
+            _check_zarr_metadata(self.path)
             try:
                 array = self._zarr.open_array(store=self.path, mode="r+")
             except Exception as exc:  # zarr's errors differ between versions
@@ -184,11 +190,29 @@ class DiskRows:
     def _done(self, kind, block):
         return os.path.exists(self._marker(kind, block))
 
-    def _mark(self, kind, block, done=True):
+    def _mark(self, kind, block, done=True, rows=None):
+        """Create (``done``) or remove the marker of ``block``; a rows marker holds the CRC-32 of ``rows``."""
         if done:
-            open(self._marker(kind, block), "w").close()
+            _write_atomic(self._marker(kind, block), "" if rows is None else f"{_crc(rows, self.dtype)}\n")
         elif os.path.exists(self._marker(kind, block)):
             os.remove(self._marker(kind, block))
+
+    def verify(self):
+        """ValueError unless every block with a rows marker still holds the rows whose CRC-32 its marker
+        recorded (a flipped bit on the disk, a block changed by hand, a marker not written here)."""
+        c = self.chunk
+        for block in range(self.blocks):
+            if not self._done("rows", block):
+                continue
+            marker = self._marker("rows", block)
+            with open(marker, encoding="ascii", errors="replace") as f:
+                recorded = f.read().strip()
+            lo, hi = block * c, min(self.shape[0], (block + 1) * c)
+            found = _crc(self._rows(lo, hi), self.dtype)
+            if recorded != str(found):
+                raise ValueError(f"expected block {block} (rows {lo}..{hi - 1}) of {self.path!r} to hold the values "
+                                 f"written there (CRC-32 {recorded or 'none'}), got CRC-32 {found}: the file changed "
+                                 f"on the disk; remove {marker!r} to solve that block again")
 
     def todo(self):
         """Indices of the row blocks without a completion marker."""
@@ -219,7 +243,7 @@ class DiskRows:
             strip = np.zeros((c, nb * c), dtype=self.dtype)
             strip[:len(rows), :len(sources)] = rows[:, sources]
             tiles.write(block * nb * c * c, strip.reshape(c, nb, c).transpose(1, 0, 2))
-        self._mark("rows", block)
+        self._mark("rows", block, rows=rows)
 
     def symmetrize(self, sources):
         """Average the pairs of source columns, block by block from S; S is removed when all are done."""
@@ -239,7 +263,7 @@ class DiskRows:
                                         s_cols[:k, :hi - lo])
             self._mark("rows", block, done=False)  # a write cut short is then solved again
             self._write_rows(block, rows)
-            self._mark("rows", block)
+            self._mark("rows", block, rows=rows)
             self._mark("symmetric", block)
         if os.path.exists(self.tiles_path):
             os.remove(self.tiles_path)
@@ -268,10 +292,39 @@ def _check_fingerprint(stored, given, path):
                              f"{stored.get(key)!r} there; remove it or choose another path")
 
 
+ZARR_CODECS = ("bytes", "zstd", "blosc", "gzip", "crc32c", "transpose")
+"""The codecs a stored Zarr array may use: what zarr writes by default, compressors and checksums
+that hold data only. A store naming any other (a pickle or object codec) is refused unread."""
+
+
+def _check_zarr_metadata(path):
+    """ValueError unless the Zarr store ``path`` is a v3 array of float32 / float64 whose codecs are
+    all in :data:`ZARR_CODECS` (read as JSON before zarr opens it)."""
+    record = os.path.join(path, "zarr.json")
+    try:
+        with open(record, encoding="utf-8") as f:
+            meta = json.load(f)
+        codecs = [c["name"] if isinstance(c, dict) else c for c in meta.get("codecs", [])]
+        kind = (meta.get("zarr_format"), meta.get("node_type"), meta.get("data_type"))
+        transformers = meta.get("storage_transformers", [])
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise ValueError(f"expected {path!r} as a Zarr v3 array written by distance_matrix, got no readable "
+                         f"{record!r} ({type(exc).__name__}: {exc})") from None
+    foreign = [c for c in codecs if c not in ZARR_CODECS]
+    if kind[:2] != (3, "array") or kind[2] not in ("float32", "float64") or foreign or transformers:
+        raise ValueError(f"expected {path!r} as a Zarr v3 float32/float64 array with codecs among {list(ZARR_CODECS)}, "
+                         f"got format {kind[0]!r}, node {kind[1]!r}, data type {kind[2]!r}, codecs {codecs}"
+                         f"{', storage transformers' if transformers else ''}; it was not read")
+
+
+def _crc(rows, dtype):
+    """CRC-32 of ``rows`` as stored: C-order bytes in ``dtype``."""
+    return zlib.crc32(np.ascontiguousarray(rows, dtype=dtype).data)
+
+
 def _write_atomic(path, text):
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+
+    write_atomic(path, write, "the progress record")

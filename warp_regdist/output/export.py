@@ -6,6 +6,7 @@ import os
 
 import numpy as np
 
+from ..atomic_write import write_atomic
 from ..geometry.mesh import Mesh
 
 __all__ = ["save_vtu"]
@@ -33,6 +34,8 @@ def save_vtu(path, mesh, point_data):
     ------
     ValueError
         For a path without the ``.vtu`` extension, a field of the wrong length or not real.
+    WriteError
+        When the file cannot be written (an existing file at ``path`` is then unchanged).
     """
     import meshio
 
@@ -52,4 +55,5 @@ def save_vtu(path, mesh, point_data):
         arr = arr.astype(np.float64)
         fields[str(name)] = np.where(np.isfinite(arr), arr, np.nan)
     kind = "triangle" if mesh.element_dim == 2 else "tetra"
-    meshio.write(path, meshio.Mesh(mesh.vertices, [(kind, mesh.elements)], point_data=fields), file_format="vtu")
+    grid = meshio.Mesh(mesh.vertices, [(kind, mesh.elements)], point_data=fields)
+    write_atomic(path, lambda tmp: meshio.write(tmp, grid, file_format="vtu"), "the .vtu file")

@@ -81,8 +81,9 @@ class PenaltySchedule:
                                  f"{' (or inf)' if name == 'doubling' else ''}, got {value!r}")
 
     def rho(self, k):
-        """The penalty at iteration k (float k allowed: a warm start's continuation)."""
-        return self.scale * min(self.rho_max, self.rho0 * 2.0 ** (k / self.doubling))
+        """The penalty at iteration k (float k allowed: a warm start's continuation); the exponent is
+        capped at 1000 doublings, far past rho_max, so that no iteration count overflows."""
+        return self.scale * min(self.rho_max, self.rho0 * 2.0 ** min(k / self.doubling, 1000.0))
 
     def offset_for(self, penalty):
         """The k >= 0 at which rho(k) = penalty (absolute, as ``rho(k)``): the schedule a warm

@@ -54,11 +54,13 @@ import warnings
 import numpy as np
 
 from .admm import PenaltySchedule, check_schedule
-from .all_pairs_checkpoint import check_checkpoint_room, checkpoint_bytes, problem_fingerprint, read_checkpoint
+from .all_pairs_checkpoint import (check_no_progress, checkpoint_bytes, checkpoint_room, problem_fingerprint,
+                                   read_checkpoint)
 from .all_pairs_run import Checkpointing, PairsRun, final_result
 from .all_pairs_state import PairsSettings, SymmetricADMM, check_memory, memory_estimate, middle_matrix
 from .multigrid import smoothed_aggregation
 from .stopping import gradient_excess, steepest_element
+from ..atomic_write import check_room
 from ..arguments import check_weight, parse_device, parse_workers
 from ..errors import ConvergenceWarning
 from ..file_lock import FileLock
@@ -197,8 +199,8 @@ class AllPairsSolver:
         self.hierarchy = smoothed_aggregation(middle_matrix(ops, self.rho2_factor, self._penalty_mid))
 
     def solve(self, accuracy=None, max_iterations=3000, eps_rel=None, eps_rel_consensus=None, eps_rel_dual=None,
-              eps_change=None, cg_fraction=None, progress=None, checkpoint=None, checkpoint_seconds=300.0,
-              resume=None, initial=None, eps_excess=None):
+              eps_change=None, cg_fraction=None, callback=None, checkpoint=None, checkpoint_seconds=300.0,
+              resume=None, initial=None, eps_excess=None, restart=False):
         """Run the ADMM from zeros (or ``resume`` / ``initial``); returns an :class:`~warp_regdist.AllPairsResult`.
 
         Parameters
@@ -231,9 +233,11 @@ class AllPairsSolver:
             Each X-step's PCG stops at a residual of cg_fraction (|D Y_j| + |A_V| / 2) per column j
             (looser solves, 1e-2, can keep the residuals from ever meeting the stopping test).
             None: from ``accuracy``.
-        progress : callable or None
-            Called after every iteration as progress(iteration, residuals (7,), tolerances (7,),
-            elapsed seconds, memory bytes).
+        callback : callable or None
+            Called after every iteration as ``callback(progress)`` with a
+            :class:`~warp_regdist.solvers.progress.Progress`: the iteration, the seconds, every stop
+            test against its threshold (``checked`` at the iterations that measure them all, once per
+            ``tolerances.pairs_change_window``) and the memory footprint.
         checkpoint : str or os.PathLike or None
             File (.npz) to which the whole state (iterates, duals, penalties, iteration count,
             residual history and the problem's fingerprint: mesh hash, alpha_hat, dtype,
@@ -241,13 +245,19 @@ class AllPairsSolver:
             ``checkpoint_seconds``, when the iteration cap is reached unconverged, when the
             run is interrupted, and at convergence (the final iterate and result: a warm start for
             ``initial``; resumed, it returns that result). Refused before any allocation when the
-            file system lacks the room, or when another run is writing it (it holds the lock file
-            ``checkpoint + ".lock"`` for the length of the run).
+            file system lacks the room for two copies (each save writes the new one beside the last),
+            when another run is writing it (it holds the lock file ``checkpoint + ".lock"`` for the
+            length of the run), and when the file exists and is not ``resume``, unless ``restart``
+            (no run's progress is overwritten by mistake). A save that fails during the run (a
+            full disk) warns with a CheckpointWarning and the run goes on.
         checkpoint_seconds : float
             Interval between checkpoints (> 0).
         resume : str or os.PathLike or None
             A checkpoint of the same problem to continue from; with the same dtype the result is
             the same matrix as an uninterrupted run's. (May equal ``checkpoint``.)
+        restart : bool
+            Allow ``checkpoint`` to name an existing file that is not ``resume``: its progress is
+            discarded and the run starts over.
         initial : str or os.PathLike or None
             A checkpoint of a run on the same mesh in the same dtype, of any alpha_hat and
             rho2_factor (continuation), to start from: its X, U, H and element state (the penalty
@@ -283,8 +293,8 @@ class AllPairsSolver:
         for name, value in list(chosen.items()) + [("checkpoint_seconds", checkpoint_seconds)]:
             if not (name in ("eps_change", "eps_excess") and value == math.inf):  # inf: no such test
                 check_weight(value, name, positive=True)
-        if progress is not None and not callable(progress):
-            raise ValueError(f"expected progress as a callable or None, got {progress!r}")
+        if callback is not None and not callable(callback):
+            raise ValueError(f"expected callback as a callable or None, got {callback!r}")
         if not (isinstance(max_iterations, (int, np.integer)) and max_iterations >= 1):
             raise ValueError(f"expected max_iterations as an integer >= 1, got {max_iterations!r}")
         if resume is not None and initial is not None:
@@ -295,8 +305,11 @@ class AllPairsSolver:
                                  relaxation=tol.relaxation, cg_rtol=tol.cg_rtol,
                                  cg_max_iterations=tol.cg_max_iterations, penalty_mid=self._penalty_mid,
                                  rho2_factor=self.rho2_factor, **chosen)
+        size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations)
         if checkpoint is not None:
-            check_checkpoint_room(checkpoint, checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, max_iterations))
+            check_room([checkpoint_room(checkpoint, size)])
+            if not restart:
+                check_no_progress(checkpoint, resume)
         with contextlib.ExitStack() as stack:
             if checkpoint is not None:
                 stack.enter_context(FileLock(checkpoint, "the checkpoint"))
@@ -311,10 +324,12 @@ class AllPairsSolver:
             state = stack.enter_context(contextlib.closing(SymmetricADMM(
                 mesh, self.operators, self.alpha_hat, self.device, dtype, settings, self.workers, self._auto_workers,
                 self.hierarchy)))
-            run = PairsRun(state, settings, self.schedule, memory, max_iterations, progress,
-                           Checkpointing(checkpoint, checkpoint_seconds, fingerprint), self._excess)
+            run = PairsRun(state, settings, self.schedule, memory, max_iterations, callback,
+                           Checkpointing(checkpoint, checkpoint_seconds, fingerprint, size), self._excess)
             if saved is not None:
                 run.restore(saved)
+                if checkpoint is not None and os.path.exists(checkpoint) and os.path.samefile(checkpoint, resume):
+                    run.saved_at = run.start
             if start is not None:
                 run.warm_start(start)
             return self._flag_steep(run.iterate(t0), chosen["eps_excess"])
@@ -343,9 +358,9 @@ class AllPairsSolver:
 
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations=3000, accuracy=None, eps_rel=None,
-              eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, progress=None,
+              eps_rel_consensus=None, eps_rel_dual=None, rho2_factor=None, cg_fraction=None, callback=None,
               workers=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, eps_change=None, schedule=None,
-              initial=None, eps_excess=None):
+              initial=None, eps_excess=None, restart=False):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh:
     ``AllPairsSolver(mesh, alpha_hat, device, dtype, rho2_factor, schedule, workers).solve(...)`` with
     the other arguments (see :class:`AllPairsSolver` and :meth:`AllPairsSolver.solve`).
@@ -358,8 +373,8 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", max_iterations
                             workers=workers)
     return solver.solve(accuracy=accuracy, max_iterations=max_iterations, eps_rel=eps_rel,
                         eps_rel_consensus=eps_rel_consensus, eps_rel_dual=eps_rel_dual, eps_change=eps_change,
-                        eps_excess=eps_excess, cg_fraction=cg_fraction, progress=progress, checkpoint=checkpoint,
-                        checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial)
+                        eps_excess=eps_excess, cg_fraction=cg_fraction, callback=callback, checkpoint=checkpoint,
+                        checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial, restart=restart)
 
 
 

@@ -1,22 +1,23 @@
 """All-pairs checkpoints: their size, the room for them, the fingerprint of the problem they hold,
-and reading one back as data (never unpickled), checked against the problem before use and
-read one array at a time (a resumed run needs one state array more than a fresh one, not a
-second copy of the state)."""
+and reading one back as data (never unpickled): checked against the problem and against the
+CRC-32 of every array before use, then read one array at a time (a resumed run needs one state
+array more than a fresh one, not a second copy of the state)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import os
-import shutil
 import zipfile
+import zlib
 
 import numpy as np
 
 from .all_pairs_state import STATE_ROWS
 from ..kernels.lanes import SCALARS, lane_width
 
-__all__ = ["checkpoint_bytes", "check_checkpoint_room", "problem_fingerprint", "read_checkpoint"]
+__all__ = ["checkpoint_bytes", "checkpoint_room", "check_no_progress", "saved_iteration", "problem_fingerprint",
+           "read_checkpoint"]
 
 
 def checkpoint_bytes(n, m, dtype, max_iterations):
@@ -28,8 +29,10 @@ def checkpoint_bytes(n, m, dtype, max_iterations):
             + 56 * (max_iterations + 1) + 65536)
 
 
-def check_checkpoint_room(path, size):
-    """ValueError unless ``path`` can be written and its file system has ``size`` bytes free."""
+def checkpoint_room(path, size):
+    """The (path, bytes, what) entry of :func:`~warp_regdist.atomic_write.check_room` for a checkpoint of
+    ``size`` bytes rewritten during a run: each save writes a new copy beside the last one, so the run
+    needs room for two, less a file already at ``path``. ValueError unless ``path`` can be written."""
     if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
         raise ValueError(f"expected checkpoint as a file name (str or os.PathLike), got {path!r}")
     path = os.fspath(path)
@@ -38,10 +41,35 @@ def check_checkpoint_room(path, size):
         raise ValueError(f"expected checkpoint in an existing directory, got {path!r} (no directory {folder!r})")
     if os.path.isdir(path) or not os.access(folder, os.W_OK):
         raise ValueError(f"expected checkpoint as a writable file name, got {path!r}")
-    free = shutil.disk_usage(folder).free
-    if size > free:
-        raise ValueError(f"expected {size / 1e9:.2f} GB free for the checkpoint {path!r}, got {free / 1e9:.2f} GB "
-                         f"free on its file system")
+    existing = os.path.getsize(path) if os.path.isfile(path) else 0
+    return path, max(size, 2 * size - existing), "two copies of the checkpoint"
+
+
+def saved_iteration(path):
+    """The iteration count recorded in the checkpoint ``path`` ("converged" for a final one), or None
+    when the file is not a readable checkpoint (only the small arrays are read)."""
+    try:
+        with np.load(os.fspath(path), allow_pickle=False) as saved:
+            if "final" in saved.files:
+                return "converged"
+            return int(saved["iteration"])
+    except Exception:  # noqa: BLE001 - whatever the file holds, it is not a readable checkpoint
+        return None
+
+
+def check_no_progress(checkpoint, resume, flags=("checkpoint", "resume=", "restart=True")):
+    """ValueError when the file ``checkpoint`` exists and is not ``resume``: writing there would discard
+    a run's progress. ``flags`` name the argument and the two ways on (continue it, discard it)."""
+    path = os.fspath(checkpoint)
+    if not os.path.exists(path) or (resume is not None and os.path.exists(os.fspath(resume))
+                                    and os.path.samefile(path, os.fspath(resume))):
+        return
+    iteration = saved_iteration(path)
+    held = ("a file that is not a readable checkpoint" if iteration is None else
+            "the checkpoint of a converged run" if iteration == "converged" else
+            f"a checkpoint at iteration {iteration}")
+    raise ValueError(f"expected {flags[0]} as a new file or the one resumed, got {path!r} holding {held}: "
+                     f"{flags[1]}{path!r} continues it, {flags[2]} discards it")
 
 
 def problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor):
@@ -79,8 +107,23 @@ def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):
         first = int(saved["iteration"]) if headers.get("iteration", (None,))[0] == () else 0
         check_checkpoint_arrays(headers, first, fingerprint["n_vertices"], n_elements, fingerprint["dtype"], path,
                                 role)
+        check_crc(saved.zip, path, role)
         stack.pop_all()
     return saved
+
+
+def check_crc(archive, path, role):
+    """ValueError unless every array of the open zip ``archive`` matches the CRC-32 recorded for it
+    (the whole file is read once, 64 KiB at a time, before the run allocates anything)."""
+    for name in archive.namelist():
+        try:
+            with archive.open(name) as f:
+                while f.read(1 << 16):   # zipfile compares the CRC-32 at the end of the member
+                    pass
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ValueError(f"expected {role} as an intact all-pairs checkpoint, got {path!r} whose array "
+                             f"{name.removesuffix('.npy')!r} cannot be read back as written ({type(exc).__name__}: "
+                             f"{exc}; the file changed on the disk)") from None
 
 
 def _array_header(npz, name):

@@ -16,8 +16,10 @@ import numpy as np
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, run_iterations
 from .all_pairs_state import STATE_ROWS
-from ..errors import ConvergenceWarning
+from ..atomic_write import write_atomic
+from ..errors import CheckpointWarning, ConvergenceWarning, WriteError
 from ..kernels.all_pairs import H2, RX2, SX2, U2, X2
+from .progress import Progress, StopTest
 from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
 from .results import AllPairsResult
 
@@ -27,11 +29,12 @@ __all__ = ["Checkpointing", "PairsRun", "final_result"]
 @dataclasses.dataclass(frozen=True)
 class Checkpointing:
     """Where (``path``, None: no checkpoints) and how often (``seconds``) a run writes its state,
-    and the ``fingerprint`` of the problem written with it."""
+    the ``fingerprint`` of the problem written with it and the most ``bytes`` a checkpoint takes."""
 
     path: object
     seconds: float
     fingerprint: dict
+    bytes: int
 
 
 def _estimate(change):
@@ -46,7 +49,8 @@ def final_result(saved, memory, checkpoint):
                           converged=True, interrupted=False, residuals=saved["residuals"], tolerance=saved["tolerance"],
                           history=saved["history"], **_estimate(float(saved["change"][1]) if "change" in saved else math.inf),
                           cg_iterations=int(saved["cg_iterations"]), seconds=float(saved["seconds"]),
-                          memory_bytes=memory, checkpoint=None if checkpoint is None else os.fspath(checkpoint))
+                          memory_bytes=memory, checkpoint=None if checkpoint is None else os.fspath(checkpoint),
+                          checkpoint_iteration=None)
 
 
 class PairsRun:
@@ -58,11 +62,11 @@ class PairsRun:
     uninterrupted run's arithmetic exactly.
     """
 
-    def __init__(self, state, settings, schedule, memory, max_iterations, progress, checkpointing, excess):
+    def __init__(self, state, settings, schedule, memory, max_iterations, callback, checkpointing, excess):
         self.state, self.settings, self.schedule = state, settings, schedule
-        self.memory, self.max_iterations, self.progress = memory, max_iterations, progress
+        self.memory, self.max_iterations, self.callback = memory, max_iterations, callback
         self.checkpoint, self.checkpoint_seconds = checkpointing.path, checkpointing.seconds
-        self.fingerprint = checkpointing.fingerprint
+        self.fingerprint, self.checkpoint_size = checkpointing.fingerprint, checkpointing.bytes
         self.start = 0
         self.history = []
         self.cg_total = 0
@@ -74,6 +78,8 @@ class PairsRun:
         # stopping.gradient_excess of the U of the last change test (measured on the device); excess(U (n, n)):
         # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
+        self.saved_at = None        # the iteration the checkpoint file holds (None: none written by this run)
+        self.save_failed = False
 
     def restore(self, saved):
         st = self.state
@@ -113,7 +119,8 @@ class PairsRun:
 
     def save(self, it, seconds, final=None):
         """Write the state at the top of iteration ``it`` to the checkpoint file, atomically; with
-        ``final`` (dict of residuals, tolerance) the converged iterate and its result instead."""
+        ``final`` (dict of residuals, tolerance) the converged iterate and its result instead. A save
+        that fails (a full disk) warns with a CheckpointWarning and leaves the last checkpoint as it was."""
         st = self.state
         data = {name: st.view(name) for name in (("X", "U", "H") if final else STATE_ROWS) + ("v",)}
         data.update(final or {})
@@ -127,17 +134,20 @@ class PairsRun:
             data.update(change_snapshot=change["snapshot"].reshape(st.n, st.setup.nb, st.setup.W),
                         change=np.array([change["window_change"][0], change["change"][0]]),
                         excess=np.array(self.last_excess))
-        path = os.fspath(self.checkpoint)
-        tmp = f"{path}.tmp{os.getpid()}"
-        try:
+        def write(tmp):
             with open(tmp, "wb") as f:
                 np.savez(f, **data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
+
+        try:
+            write_atomic(self.checkpoint, write, "the checkpoint", size=self.checkpoint_size)
+            self.saved_at = it
+        except WriteError as exc:
+            if not self.save_failed:
+                kept = (f" (the checkpoint of iteration {self.saved_at} stays valid)" if self.saved_at is not None
+                        else "")
+                warnings.warn(f"{exc}; the run goes on without this checkpoint{kept}, and tries again at the next "
+                              "one", CheckpointWarning, stacklevel=2)
+            self.save_failed = True
 
     def _elapsed(self):
         return self.seconds_before + time.perf_counter() - self.t0
@@ -157,7 +167,7 @@ class PairsRun:
 
     def status(self, it):
         """The seven residuals of the iterate after ``it`` iterations against their tolerances, the
-        change test; history and progress. True when all hold (the final checkpoint is written)."""
+        change test; history and the callback. True when all hold (the final checkpoint is written)."""
         if it == 0:
             return False
         st, tol, w = self.state, self.settings, self.state.column_area
@@ -177,17 +187,25 @@ class PairsRun:
         self.res = res = np.array([r1, r1, s1, s1, rx, rx, sx])
         self.eps = eps = np.array([eps_p, eps_p, eps_d, eps_d, eps_x, eps_x, eps_dx])
         self.history.append(res / np.maximum(eps, 1e-300))
-        if self.progress is not None:
-            self.progress(it, res, eps, self._elapsed(), self.memory)
-        if self.change_test.due(it):
+        due = self.change_test.due(it)
+        if due:
             self.change_test.update(st.view("U").reshape(-1, 1))
             if tol.eps_excess < math.inf:
                 self.last_excess = st.gradient_excess(float(np.max(self.change_test.snapshot)))
+        if self.callback is not None:
+            self.callback(Progress(it, self._elapsed(), self.tests(), checked=due, memory_bytes=self.memory))
         if np.all(res <= eps) and self.change_test.settled[0] and self.last_excess <= tol.eps_excess:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
             return True
         return False
+
+    def tests(self):
+        """The stopping rule's parts at the last test, as :class:`~warp_regdist.solvers.progress.StopTest`."""
+        tol = self.settings
+        return (StopTest("max residual/tolerance", float(np.max(self.res / np.maximum(self.eps, 1e-300))), 1.0),
+                StopTest("change to come", float(self.change_test.change[0]), tol.eps_change),
+                StopTest("gradient excess", float(self.last_excess), tol.eps_excess))
 
     def advance(self, it, count):
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
@@ -224,4 +242,5 @@ class PairsRun:
                               **_estimate(float(self.change_test.change[0])),
                               cg_iterations=self.cg_total, seconds=self._elapsed(),
                               memory_bytes=self.memory,
-                              checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint))
+                              checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint),
+                              checkpoint_iteration=self.saved_at)

@@ -1,0 +1,65 @@
+"""What a running solve reports to its ``callback``: one :class:`Progress` per test of its iterate."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+__all__ = ["Progress", "StopTest"]
+
+
+@dataclasses.dataclass(frozen=True)
+class StopTest:
+    """One part of a stopping rule: it holds when ``value <= threshold`` (both in the test's own units)."""
+
+    name: str
+    value: float
+    threshold: float
+
+    @property
+    def holds(self):
+        return self.value <= self.threshold
+
+
+@dataclasses.dataclass(frozen=True)
+class Progress:
+    """The state of a solve after ``iteration`` iterations, as its ``callback(progress)`` receives it.
+
+    Attributes
+    ----------
+    iteration : int
+    seconds : float
+        Wall time since the solve began (a resumed run counts its earlier part too).
+    tests : tuple of StopTest
+        Every part of the stopping rule against its threshold; the solve stops when all hold.
+    checked : bool
+        Whether every test was measured at this iteration (some are measured once per window of
+        iterations, and keep their last value in between).
+    memory_bytes : int
+        The solve's estimated footprint (0 where not estimated).
+    """
+
+    iteration: int
+    seconds: float
+    tests: tuple
+    checked: bool = True
+    memory_bytes: int = 0
+
+    @property
+    def converged(self):
+        """Whether every test holds."""
+        return all(t.holds for t in self.tests)
+
+    def __str__(self):
+        parts = []
+        for t in self.tests:
+            if math.isinf(t.threshold):
+                continue
+            mark = "" if t.holds else " (holding it back)"
+            parts.append(f"{t.name} {_number(t.value)}/{_number(t.threshold)}{mark}")
+        memory = f", {self.memory_bytes / 1e9:.2f} GB" if self.memory_bytes else ""
+        return f"iteration {self.iteration}: {', '.join(parts)} (value/threshold); {self.seconds:.1f} s{memory}"
+
+
+def _number(x):
+    return "inf" if math.isinf(x) else f"{x:.3g}"
