@@ -141,3 +141,17 @@ def test_cli_view(polyscope, tmp_path, capsys):
     assert "warp-regdist: error: expected u of shape (642,) or (642, k), got (7,)" in capsys.readouterr().err
     assert main(["view", str(closed), str(tmp_path / "none.npy")]) == 2
     assert "expected VALUES as an existing .npy file" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="displays are looked up on Linux only")
+def test_cli_view_without_a_display_is_one_line(polyscope, tmp_path, capsys, monkeypatch):
+    closed, _ = _sphere_files(tmp_path)
+    values = tmp_path / "u.npy"
+    np.save(values, np.linspace(0.0, 1.0, 642))
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["view", str(closed), str(values)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err == ("warp-regdist: error: expected a display for the viewer window, got none (DISPLAY "
+                                 "and WAYLAND_DISPLAY are unset): run it on a desktop, or write a picture instead "
+                                 "(warp-regdist distance --png)\n")

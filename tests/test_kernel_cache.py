@@ -6,8 +6,8 @@ import sys
 
 SCRIPT = """
 import warp as wp
-wp.config.quiet = False
 import warp_regdist as wrd
+wp.config.log_level = wp.LOG_INFO  # warp_regdist turns Warp's module-load lines off
 import trimesh
 s = trimesh.creation.icosphere(1)
 solver = wrd.DistanceSolver(wrd.Mesh(s.vertices, s.faces), alpha_hat=0.1, device="cpu")

@@ -181,3 +181,55 @@ def test_the_depth_test_hides_isolines_behind_a_nearer_surface(tmp_path, monkeyp
     # the same picture without the depth test: the hidden isolines appear over the near sheet
     monkeypatch.setattr(render, "_visible", lambda ax, buffer, xy, code_min: np.ones(len(xy), dtype=bool))
     assert _dark_columns(draw("no_depth_test.png")[r0:r1, c0:c1]) >= 9
+
+
+def _pixels(path):
+    import matplotlib.image as mpimg
+
+    return mpimg.imread(path)[..., :3]
+
+
+def _marked(image):
+    """Pixels of the red that marks sources and curves (#e41a1c)."""
+    return int((np.abs(image - np.array([228, 26, 28]) / 255).max(axis=2) < 0.04).sum())
+
+
+@pytest.fixture(scope="module")
+def picture_inputs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pictures")
+    s = trimesh.creation.icosphere(subdivisions=3)
+    s.export(folder / "sphere.off")
+    t = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    np.savetxt(folder / "loop.csv", np.stack([np.cos(t), np.sin(t), 0.0 * t], axis=1), delimiter=",")
+    np.savetxt(folder / "point.csv", [[0.3, 0.3, 0.9]], delimiter=",")
+    np.savetxt(folder / "cloud.xyz", s.vertices)
+    return folder
+
+
+def test_a_signed_distance_picture_diverges_around_zero_and_draws_its_curve(picture_inputs, tmp_path):
+    from warp_regdist.cli import main
+
+    png = tmp_path / "signed.png"
+    assert main(["distance", str(picture_inputs / "sphere.off"), "--curve", str(picture_inputs / "loop.csv"),
+                 "--closed", "--output", str(tmp_path / "u.npy"), "--png", str(png), "--quiet"]) == 0
+    image = _pixels(png)
+    reds = ((image[..., 0] > 0.6) & (image[..., 2] < 0.35)).sum()
+    blues = ((image[..., 2] > 0.45) & (image[..., 0] < 0.3)).sum()
+    assert reds > 20_000 and blues > 20_000          # both signs, in two hues
+    assert _marked(image) > 2_000                    # the curve
+
+
+def test_point_sources_and_point_clouds_are_marked_and_clouds_have_no_holes(picture_inputs, tmp_path):
+    from warp_regdist.cli import main
+
+    for name, args in (("point", ["sphere.off", "--sources", str(picture_inputs / "point.csv")]),
+                       ("cloud", ["cloud.xyz", "--sources", "0"])):
+        png = tmp_path / f"{name}.png"
+        assert main(["distance", str(picture_inputs / args[0]), *args[1:], "--output", str(tmp_path / "u.npy"),
+                     "--png", str(png), "--quiet"]) == 0
+        image = _pixels(png)
+        assert _marked(image) > 50, name
+        shape = (image[:, :690] < 0.97).any(axis=2)    # the first view, 4.6 in at 150 dpi
+        ys, xs = np.nonzero(shape)
+        cy, cx, hy, hx = (ys.min() + ys.max()) // 2, (xs.min() + xs.max()) // 2, np.ptp(ys) // 5, np.ptp(xs) // 5
+        assert shape[cy - hy:cy + hy, cx - hx:cx + hx].mean() > 0.98, name   # covered, not speckled

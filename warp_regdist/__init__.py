@@ -4,14 +4,17 @@ Implements Edelstein, Guillen, Solomon, Ben-Chen, "A Convex Optimization Framewo
 Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA).
 """
 
+import warp as _wp
+
 from . import _moved, metrics
 from .solvers.admm import PenaltySchedule
 from .solvers.all_pairs_admm import AllPairsSolver, all_pairs
 from .output.export import save_vtu
 from .geometry.line_field import line_field
-from .errors import ConvergenceWarning, MeshError, WorkerError
+from .errors import CheckpointWarning, ConvergenceWarning, MeshError, MeshWarning, WorkerError, WriteError
 from .geometry.mesh import Mesh, boundary_faces, boundary_vertices
 from .geometry.mesh_io import data_path, load_mesh
+from .geometry.repair import merge_duplicate_vertices
 from .geometry.surface_points import surface_points
 from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
@@ -26,6 +29,9 @@ from .output.viewer import show
 
 __version__ = "0.1.0"
 
+if _wp.config.log_level == _wp.LOG_INFO:  # Warp's default: its banner and module loads printed on stdout
+    _wp.config.log_level = _wp.LOG_WARNING
+
 _moved.install()
 
 
@@ -38,7 +44,7 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Mesh", "MeshError", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
+__all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "show", "__version__"]
+           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "__version__"]

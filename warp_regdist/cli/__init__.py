@@ -4,10 +4,11 @@ One module per subcommand: ``demo`` (the spot cow shipped with the package), ``d
 (any mesh file), ``allpairs`` (the symmetric all-pairs distance matrix), ``matrix``
 (single-source rows written block by block, resumable, optionally on a Dask cluster),
 ``volume`` (a closed surface tetrahedralized, then the distance inside it), ``view`` (values
-on a mesh in a polyscope window); what they share is in :mod:`.common`. Bad input (missing
-or malformed files, bad sources, an unknown device, an unsupported output extension) ends
-with one line ``warp-regdist: error: ...`` on stderr and exit status 2; other exceptions are
-bugs and propagate with their traceback.
+on a mesh in a polyscope window); what they share is in :mod:`.common`. Every subcommand keeps
+one contract (:data:`.common.EXIT_STATUS`): 0 done, 1 written but not converged, 2 bad input or
+environment (missing or malformed files, bad sources, an unknown device, a full disk, a worker
+process that died: one line ``warp-regdist: error: ...`` on stderr), 130 interrupted; other
+exceptions are bugs and propagate with their traceback.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import argparse
 import sys
 
 from . import allpairs, demo, distance, matrix, view, volume
-from .common import EXIT_STATUS, PROG
+from ..errors import WorkerError
+from .common import EXIT_STATUS, PROG, quiet_warp
 
 __all__ = ["main"]
 
@@ -52,17 +54,22 @@ def main(argv: list[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success (also when the ADMM did not converge: a warning line goes to
-        stderr), 2 on bad input or bad usage (one ``warp-regdist: error:`` line).
+        0 done, 1 written but not converged (a ``warp-regdist: warning:`` line says so), 2 bad input
+        or environment (one ``warp-regdist: error:`` line, nothing written), 130 interrupted.
     """
     try:
         args = _parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
+    quiet_warp(getattr(args, "verbose", False))
     try:
-        SUBCOMMANDS[args.command].run(args)
-    except (ValueError, OSError) as exc:  # MeshError is a ValueError
-        message = " ".join(str(exc).split())
-        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return SUBCOMMANDS[args.command].run(args) or 0
+    except (ValueError, OSError, WorkerError) as exc:  # MeshError is a ValueError, WriteError an OSError
+        lines = str(exc).strip().splitlines() or [type(exc).__name__]
+        if isinstance(exc, WorkerError) and len(lines) > 1:  # a worker's traceback: its exception, the last line
+            lines = [lines[0], lines[-1]]
+        print(f"{PROG}: error: {' '.join(' '.join(lines).split())}", file=sys.stderr)
         return 2
-    return 0
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 
 import numpy as np
 
-from .common import check_output, load, solver_options, subcommand, warn, warnings_to_stderr
+from .common import check_output, exit_status, load, solver_options, subcommand, warn, warnings_to_stderr
 
 
 def add_parser(sub) -> None:
@@ -40,6 +41,9 @@ def add_parser(sub) -> None:
     allpairs.add_argument("--checkpoint-seconds", type=float, default=300.0, metavar="S",
                           help="seconds between checkpoints (default: 300)")
     allpairs.add_argument("--resume", metavar="FILE", help="continue from a checkpoint of the same problem")
+    allpairs.add_argument("--restart", action="store_true",
+                          help="start over although --checkpoint names a file that holds a run's progress (it is "
+                          "overwritten); without it such a --checkpoint is refused unless it is the --resume file")
     allpairs.add_argument("--initial", metavar="FILE",
                           help="warm start from a checkpoint of this mesh and dtype at another alpha_hat")
     allpairs.add_argument("--max-iterations", type=int, default=3000, metavar="N",
@@ -50,52 +54,75 @@ def add_parser(sub) -> None:
 
 
 def _allpairs_progress():
-    """A progress callback for ``all_pairs`` printing one stderr line per ~2 s (and the last
-    iteration): iteration, the seven residuals / their tolerances, elapsed time, memory."""
-    from ..solvers.results import RESIDUAL_NAMES
-
-    last = [-10.0]
-
-    def show(iteration, residuals, tolerance, seconds, memory):
-        if seconds - last[0] < 2.0 and np.any(residuals > tolerance):
-            return
-        last[0] = seconds
-        parts = " ".join(f"{k} {r:.2e}/{t:.2e}" for k, r, t in zip(RESIDUAL_NAMES, residuals, tolerance))
-        print(f"  iteration {iteration}: {parts} (residual/tolerance), {seconds:.1f} s, {memory / 1e9:.2f} GB",
-              file=sys.stderr, flush=True)
+    """A callback for ``all_pairs`` printing one stderr line per check window: every stop test against
+    its threshold."""
+    def show(progress):
+        if progress.checked:
+            print(f"  {progress}", file=sys.stderr, flush=True)
 
     return show
 
 
-def run(args: argparse.Namespace) -> None:
-    import warp as wp
-
+def run(args: argparse.Namespace) -> int:
     from .. import ConvergenceWarning, all_pairs
+    from ..atomic_write import check_room
+    from ..solvers.all_pairs_checkpoint import check_no_progress, checkpoint_bytes, checkpoint_room
 
     check_output(args.output, (".npy",), "--output")
     if args.checkpoint is not None:
         check_output(args.checkpoint, (".npz",), "--checkpoint")
+        if not args.restart:
+            check_no_progress(args.checkpoint, args.resume, ("--checkpoint", "--resume ", "--restart"))
     for flag, path in (("--resume", args.resume), ("--initial", args.initial)):
         if path is not None and not os.path.isfile(path):
             raise ValueError(f"expected {flag} as an existing checkpoint file, got {path!r} (no such file)")
     mesh = load(args.mesh)
-    wp.config.log_level = wp.LOG_WARNING
+    n = mesh.n_vertices
+    planned = [(args.output, 8 * n * n + 128, "--output")]
+    if args.checkpoint is not None:
+        planned.append(checkpoint_room(args.checkpoint, checkpoint_bytes(n, mesh.n_elements, args.dtype,
+                                                                        args.max_iterations)))
+    check_room(planned)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
-                           progress=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
+                           callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
                            workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
-                           resume=args.resume, initial=args.initial, accuracy=args.accuracy)
-    saved = f"; the solver state is in {args.checkpoint} (continue with --resume {args.checkpoint})" \
-        if args.checkpoint is not None else ""
+                           resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)
+    saved = (f"; the solver state of iteration {result.checkpoint_iteration} is in {args.checkpoint} (continue with "
+             f"--resume {args.checkpoint})" if result.get("checkpoint_iteration") is not None else "")
     if result.interrupted:
         warn(f"interrupted at ADMM iteration {result.iterations}: the matrix written is the current iterate{saved}")
     elif not result.converged:
         warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is "
-              f"approximate{saved}")
-    np.save(args.output, result.distance)
+             f"approximate{saved}")
+    write_matrix(args.output, result.distance, args.checkpoint)
     if not args.quiet:
-        print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. All-pairs regularized distance, "
+        print(f"{os.path.basename(args.mesh)}: {n} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "
               f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
               f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} and gradient excess "
               f"{result.gradient_excess:.2%} of the largest distance {result.distance.max():.4g}. Wrote {args.output}.")
+    return exit_status(result)
+
+
+def write_matrix(path: str, U: np.ndarray, checkpoint: str | None) -> None:
+    """``U`` to ``path`` atomically; when that fails (a disk that filled during the run), the error
+    says where the matrix is: in the checkpoint, or in a copy written to the temporary directory."""
+    from ..atomic_write import write_atomic
+    from ..errors import WriteError
+
+    try:
+        write_atomic(path, lambda tmp: np.save(tmp, U), "--output", size=U.nbytes + 128)
+        return
+    except WriteError as exc:
+        failed = exc
+    if checkpoint is not None and os.path.isfile(checkpoint):
+        raise WriteError(f"{failed}; the matrix is in the checkpoint {checkpoint!r}: run the same command with "
+                         f"--resume {checkpoint} and an --output where there is room", failed.errno) from None
+    rescue = os.path.join(tempfile.gettempdir(), f"warp-regdist-{os.getpid()}-{os.path.basename(path)}")
+    try:
+        write_atomic(rescue, lambda tmp: np.save(tmp, U), "the copy of --output", size=U.nbytes + 128)
+    except WriteError:
+        raise WriteError(f"{failed}; no copy could be written to {tempfile.gettempdir()!r} either: the matrix is "
+                         "lost (a --checkpoint keeps it)", failed.errno) from None
+    raise WriteError(f"{failed}; the matrix was written to {rescue!r} instead", failed.errno) from None

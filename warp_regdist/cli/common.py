@@ -19,13 +19,47 @@ OUTPUT_EXTENSIONS = (".npy", ".csv", ".vtu")
 LISTED_SOURCES = 8  # sources named one by one in the summary
 
 EXIT_STATUS = """\
-exit status:
-  0  the distance was written; also when the ADMM stopped at the iteration cap
-     without meeting its stopping test (then a line 'warp-regdist: warning: ...'
-     on stderr says so and the values are approximate)
-  2  bad input (missing or unreadable mesh, bad --sources, unsupported output
-     extension, unavailable device, ...): one line 'warp-regdist: error: ...'
+exit status (the same for every subcommand):
+  0    done: the output was written and the solve converged
+  1    the output was written, but the solve stopped without meeting its stopping
+       test (the iteration cap): a line 'warp-regdist: warning: ...' says so and
+       the values are approximate
+  2    bad input or environment (missing or unreadable mesh, bad --sources,
+       unsupported output, unavailable device, no room on the disk, a worker
+       process that died, ...): one line 'warp-regdist: error: ...'
+  130  interrupted (Ctrl-C): what was computed so far is kept as the
+       subcommand's warning says (a second Ctrl-C stops at once)
 """
+
+
+def exit_status(result) -> int:
+    """The exit status of a written result: 130 interrupted, 1 not converged (any column), else 0."""
+    if getattr(result, "interrupted", False):
+        return 130
+    return 0 if np.all(result.converged) else 1
+
+
+def quiet_warp(verbose: bool) -> None:
+    """Warp's messages (start-up banner, module loads, where Warp prints them) with ``verbose``, else none."""
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
+
+
+def announce_compile(dtype: str, quiet: bool) -> None:
+    """Say so before a solve whose Warp kernels of ``dtype`` are not in the kernel cache yet."""
+    import warp as wp
+
+    from ..arguments import parse_device
+
+    if quiet:
+        return
+    parse_device("cpu")  # initializes Warp, which sets the cache folder
+    folder = wp.config.kernel_cache_dir
+    names = os.listdir(folder) if folder and os.path.isdir(folder) else []
+    if not any("warp_regdist_" in name and f"_{dtype}_" in name for name in names):
+        print(f"{PROG}: compiling the Warp kernels for {dtype} (a minute or more, once: they are cached in "
+              f"{folder})", file=sys.stderr, flush=True)
 
 
 def subcommand(sub, name: str, help: str, description: str) -> argparse.ArgumentParser:
@@ -35,7 +69,7 @@ def subcommand(sub, name: str, help: str, description: str) -> argparse.Argument
 
 
 def solver_options(p: argparse.ArgumentParser) -> None:
-    """--device, --dtype, --quiet."""
+    """--device, --dtype, --quiet, --verbose."""
     p.add_argument(
         "--device",
         default=None,
@@ -49,6 +83,7 @@ def solver_options(p: argparse.ArgumentParser) -> None:
         help="precision of the solver (default: float64)",
     )
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
+    p.add_argument("--verbose", action="store_true", help="also print Warp's messages (start-up, module loads)")
 
 
 def check_output(path: str, extensions: tuple[str, ...], option: str) -> None:
@@ -76,7 +111,15 @@ def read_xyz(path: str, option: str) -> np.ndarray:
     return points
 
 
-def parse_surface_points(path: str, mesh, option: str) -> tuple[list, str]:
+def max_distance_option(p: argparse.ArgumentParser) -> None:
+    """--max-distance, for the commands that read points from a .csv file."""
+    p.add_argument("--max-distance", type=float, default=None, metavar="D",
+                   help="the farthest a point of a .csv file may lie from the surface, in the mesh's units; "
+                   "it is moved to its closest surface point (default: 5%% of the bounding box diagonal; "
+                   "inf: any distance)")
+
+
+def parse_surface_points(path: str, mesh, option: str, max_distance: float | None = None) -> tuple[list, str]:
     """Surface points [(face, barycentric)] of the rows of a .csv file and their description."""
     from .. import surface_points
 
@@ -84,7 +127,9 @@ def parse_surface_points(path: str, mesh, option: str) -> tuple[list, str]:
     if mesh.element_dim != 2:
         raise ValueError(f"expected a triangle mesh for {option} given as points ({path!r}), got a tetrahedral mesh "
                          "(give vertex indices)")
-    points, moved = surface_points(mesh, xyz, return_distance=True)
+    if max_distance is not None and not max_distance > 0:
+        raise ValueError(f"expected --max-distance > 0, got {max_distance!r}")
+    points, moved = surface_points(mesh, xyz, return_distance=True, max_distance=max_distance)
     return points, f"{len(points)} surface points of {os.path.basename(path)} (moved onto the surface by at most {moved.max():.3g})"
 
 
@@ -102,25 +147,34 @@ def parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
         raise ValueError(
             f"expected --sources as comma-separated vertex indices (e.g. 2272,17) or 'boundary', got {text!r}"
         )
-    sources = np.unique(np.array([int(item) for item in items], dtype=np.int64))
-    bad = sources[(sources < 0) | (sources >= mesh.n_vertices)]
-    if bad.size:
-        raise ValueError(
-            f"expected --sources in [0, {mesh.n_vertices - 1}] (the mesh has {mesh.n_vertices} "
-            f"vertices), got {bad[0]}"
-        )
+    sources = vertex_indices([int(item) for item in items], mesh.n_vertices, "--sources")
     listed = ", ".join(str(s) for s in sources[:LISTED_SOURCES])
     more = f", ... ({sources.size} in all)" if sources.size > LISTED_SOURCES else ""
     noun = "vertex" if sources.size == 1 else "vertices"
     return sources, f"source {noun} {listed}{more}"
 
 
+def vertex_indices(values: list[int], n: int, option: str) -> np.ndarray:
+    """Sorted distinct (s,) int64 of the Python ints ``values``; ValueError for one outside [0, n - 1]
+    (checked before the conversion, so that no number is too large for it)."""
+    bad = [v for v in values if not 0 <= v < n]
+    if bad:
+        raise ValueError(f"expected {option} in [0, {n - 1}] (the mesh has {n} vertices), got {bad[0]}")
+    return np.unique(np.array(values, dtype=np.int64))
+
+
 def write_values(path: str, values: np.ndarray) -> None:
+    """``values`` as .npy (the array) or .csv (a value per line, full precision), written atomically."""
+    from ..atomic_write import write_atomic
+
     if path.lower().endswith(".npy"):
-        np.save(path, values)
+        write_atomic(path, lambda tmp: np.save(tmp, values), "--output", size=values.nbytes + 128)
     else:
-        with open(path, "w", encoding="ascii") as f:
-            f.writelines(f"{float(v)!r}\n" for v in values)
+        def write_csv(tmp):
+            with open(tmp, "w", encoding="ascii") as f:
+                f.writelines(f"{float(v)!r}\n" for v in values)
+
+        write_atomic(path, write_csv, "--output")
 
 
 def warn(message: str) -> None:
@@ -130,13 +184,18 @@ def warn(message: str) -> None:
 @contextlib.contextmanager
 def warnings_to_stderr(reported_by_caller=()):
     """Record the warnings of the block, then print each as one 'warp-regdist: warning: ...'
-    line, except those of the categories ``reported_by_caller`` (a tuple of classes)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        yield
-    for w in caught:
-        if not issubclass(w.category, reported_by_caller):
-            warn(str(w.message))
+    line, except those of the categories ``reported_by_caller`` (a tuple of classes). Yields a
+    list that holds the categories of all of them after the block."""
+    seen = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield seen
+    finally:
+        for w in caught:
+            seen.append(w.category)
+            if not issubclass(w.category, reported_by_caller):
+                warn(str(w.message))
 
 
 def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
@@ -145,12 +204,10 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
     (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``where``: the
     DistanceSolver.solve keywords points, curve, closed; ``regularization``: the DistanceSolver
     keywords regularizer, beta_hat, vector_field."""
-    import warp as wp
-
     from .. import ConvergenceWarning, DistanceSolver
 
-    wp.config.log_level = wp.LOG_WARNING  # no start-up banner on stdout
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
+    announce_compile(dtype, quiet=not verbose)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose, **(where or {}))
     if result.interrupted:

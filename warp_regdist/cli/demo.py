@@ -6,9 +6,8 @@ import argparse
 import importlib.resources
 import os
 
-import numpy as np
-
-from .common import DEMO_ALPHA_HAT, DEMO_SOURCE, load, solve, solver_options, subcommand, summary
+from .common import (DEMO_ALPHA_HAT, DEMO_SOURCE, exit_status, load, solve, solver_options, subcommand, summary,
+                     write_values)
 
 
 def add_parser(sub) -> None:
@@ -27,7 +26,7 @@ def add_parser(sub) -> None:
     solver_options(demo)
 
 
-def run(args: argparse.Namespace) -> None:
+def run(args: argparse.Namespace) -> int:
     from ..output.render import render_distance
 
     if os.path.exists(args.output) and not os.path.isdir(args.output):
@@ -44,8 +43,9 @@ def run(args: argparse.Namespace) -> None:
             flush=True,
         )
     solver, result = solve(mesh, [DEMO_SOURCE], DEMO_ALPHA_HAT, args.device, args.dtype)
-    np.save(npy, result.distance)
+    write_values(npy, result.distance)
     title = f"spot: regularized geodesic distance from vertex {DEMO_SOURCE}, alpha_hat {DEMO_ALPHA_HAT:g}"
     render_distance(mesh, result.distance, png, sources=[DEMO_SOURCE], title=title)
     if not args.quiet:
         print(summary("spot_rr.off", mesh, f"source vertex {DEMO_SOURCE}", solver, result, [npy, png]))
+    return exit_status(result)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, load, parse_sources, parse_surface_points, solve,
-                     solver_options, subcommand, summary, warn, write_values)
+from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_status, load, max_distance_option,
+                     parse_sources, parse_surface_points, solve, solver_options, subcommand, summary, warn,
+                     write_values)
 
 
 def add_parser(sub) -> None:
@@ -91,6 +92,7 @@ def add_parser(sub) -> None:
         help="finish with Newton's method on the barrier-smoothed problem: within about 0.03%% of the exact "
         "minimizer, about 5 times the solve's time (vertex sources, Dirichlet regularizer; docs/method.md section 10)",
     )
+    max_distance_option(distance)
     solver_options(distance)
 
 
@@ -109,9 +111,8 @@ def _regularization(args: argparse.Namespace, mesh) -> dict:
     return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field}
 
 
-def run(args: argparse.Namespace) -> None:
+def run(args: argparse.Namespace) -> int:
     from ..output.export import save_vtu
-    from ..output.render import render_cut, render_distance
 
     check_output(args.output, OUTPUT_EXTENSIONS, "--output")
     if args.png is not None:
@@ -123,13 +124,13 @@ def run(args: argparse.Namespace) -> None:
     mesh = load(args.mesh)
     sources, where, described = None, {}, []
     if args.sources is not None and args.sources.lower().endswith(".csv"):
-        where["points"], text = parse_surface_points(args.sources, mesh, "--sources")
+        where["points"], text = parse_surface_points(args.sources, mesh, "--sources", args.max_distance)
         described.append(text)
     elif args.sources is not None:
         sources, text = parse_sources(args.sources, mesh)
         described.append(text)
     if args.curve is not None:
-        where["curve"], text = parse_surface_points(args.curve, mesh, "--curve")
+        where["curve"], text = parse_surface_points(args.curve, mesh, "--curve", args.max_distance)
         where["closed"] = args.closed
         described.append(("the closed curve through " if args.closed else "the curve through ") + text)
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
@@ -146,12 +147,37 @@ def run(args: argparse.Namespace) -> None:
     written = [args.output]
     if args.png is not None:
         marked = sources if args.sources is not None and args.sources.strip().lower() != "boundary" else None
-        name = os.path.basename(args.mesh)
-        title = f"{name}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
-        if mesh.element_dim == 3:
-            render_cut(mesh, result.distance, args.png, title=f"{title}, cut z = centre")
-        else:
-            render_distance(mesh, result.distance, args.png, sources=marked, title=title)
+        _picture(args, mesh, solver, result, marked)
         written.append(args.png)
     if not args.quiet:
         print(summary(os.path.basename(args.mesh), mesh, " and ".join(described), solver, result, written))
+    return exit_status(result)
+
+
+def _picture(args: argparse.Namespace, mesh, solver, result, marked) -> None:
+    """The --png of a solve: a cut of a tetrahedral mesh; a point cloud as splats; a surface with its
+    source vertices and points marked and its curves drawn, a signed distance diverging around 0."""
+    import numpy as np
+
+    from ..output.render import render_cut, render_distance, render_points
+
+    title = f"{os.path.basename(args.mesh)}: regularized geodesic distance, alpha_hat {solver.alpha_hat:g}"
+    if mesh.element_dim == 3:
+        render_cut(mesh, result.distance, args.png, title=f"{title}, cut z = centre")
+        return
+    if mesh.element_weights is not None:
+        render_points(mesh.vertices, result.distance, args.png, sources=marked, title=title)
+        return
+    shown, values, curves = mesh, result.distance, []
+    if "refined_mesh" in result:           # the refined mesh has the points and curves as vertices and edges
+        shown, values, curves = result.refined_mesh, result.refined_distance, list(result.refined_curves)
+        on_curves = np.concatenate(curves) if curves else np.zeros(0, dtype=np.int64)
+        points = np.setdiff1d(np.flatnonzero(values == 0), on_curves)
+        marked = points if marked is None else np.union1d(marked, points)
+    if args.closed:
+        values = result.refined_signed_distance
+        top = float(np.max(np.abs(values[np.isfinite(values)]), initial=0.0)) or 1.0
+        render_distance(shown, values, args.png, sources=marked, curves=curves, cmap="RdBu_r", limits=(-top, top),
+                        label="signed distance", title=f"{title}, signed (negative on the curve's left)")
+    else:
+        render_distance(shown, values, args.png, sources=marked, curves=curves, title=title)

@@ -10,8 +10,8 @@ import sys
 
 import numpy as np
 
-from .common import (DEMO_ALPHA_HAT, PROG, check_output, load, read_xyz, solver_options, subcommand,
-                     warnings_to_stderr)
+from .common import (DEMO_ALPHA_HAT, PROG, announce_compile, check_output, load, max_distance_option,
+                     read_xyz, solver_options, subcommand, warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -56,11 +56,12 @@ def add_parser(sub) -> None:
                          help="solve on the Dask cluster of this scheduler (e.g. tcp://10.0.0.5:8786)")
     cluster.add_argument("--workers", type=int, metavar="N",
                          help="solve on a local Dask cluster of N worker processes (one thread each)")
+    max_distance_option(matrix)
     solver_options(matrix)
 
 
-def _matrix_sources(text: str):
-    """None for 'all', else the vertex indices listed in the file ``text``."""
+def _matrix_sources(text: str, n: int):
+    """None for 'all', else the vertex indices listed in the file ``text`` (each in [0, n - 1])."""
     if text.strip().lower() == "all":
         return None
     if not os.path.isfile(text):
@@ -73,7 +74,12 @@ def _matrix_sources(text: str):
     bad = [item for item in items if not re.fullmatch(r"[+-]?\d+", item)]
     if bad:
         raise ValueError(f"expected integer vertex indices in --sources {text!r}, got {bad[0]!r}")
-    return np.array([int(item) for item in items], dtype=np.int64)
+    values = [int(item) for item in items]
+    bad = [v for v in values if not 0 <= v < n]
+    if bad:
+        raise ValueError(f"expected vertex indices in [0, {n - 1}] in --sources {text!r} (the mesh has {n} vertices), "
+                         f"got {bad[0]}")
+    return np.array(values, dtype=np.int64)
 
 
 def _dask_client(args: argparse.Namespace, stack):
@@ -118,22 +124,21 @@ def _matrix_progress(quiet: bool):
     return show, state
 
 
-def run(args: argparse.Namespace) -> None:
-    import warp as wp
-
-    from .. import distance_matrix, surface_points
+def run(args: argparse.Namespace) -> int:
+    from .. import ConvergenceWarning, distance_matrix, surface_points
 
     if not (args.output.lower().endswith(".zarr") and os.path.isdir(args.output)):  # a Zarr store is a directory
         check_output(args.output, (".zarr", ".npy"), "--output")
     mesh = load(args.mesh)
     points = None
     if args.sources.lower().endswith(".csv"):
-        points, sources = surface_points(mesh, read_xyz(args.sources, "--sources")), None
+        points = surface_points(mesh, read_xyz(args.sources, "--sources"), max_distance=args.max_distance)
+        sources = None
     else:
-        sources = _matrix_sources(args.sources)
-    wp.config.log_level = wp.LOG_WARNING
+        sources = _matrix_sources(args.sources, mesh.n_vertices)
+    announce_compile(args.dtype, args.quiet)
     progress, state = _matrix_progress(args.quiet)
-    with contextlib.ExitStack() as stack, warnings_to_stderr():
+    with contextlib.ExitStack() as stack, warnings_to_stderr() as seen:
         client = _dask_client(args, stack)
         try:
             D = distance_matrix(mesh, args.alpha_hat, sources=sources, symmetrize=args.symmetrize,
@@ -145,7 +150,7 @@ def run(args: argparse.Namespace) -> None:
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted; the blocks written so far stay in {args.output}: run the same command "
                   "again to resume", file=sys.stderr)
-            raise SystemExit(130) from None
+            return 130
     if not args.quiet:
         where = "here" if client is None else f"on a Dask cluster ({args.scheduler or f'{args.workers} workers'})"
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. Distance matrix of {D.shape[0]} "
@@ -153,3 +158,4 @@ def run(args: argparse.Namespace) -> None:
               f"{'symmetrized' if args.symmetrize and points is None else 'not symmetrized'}: {-(-D.shape[0] // args.chunk)} blocks of "
               f"{args.chunk} rows ({state['found']} already written), solved {where} in {state['seconds']:.1f} s. "
               f"Wrote {args.output}.")
+    return 1 if any(issubclass(category, ConvergenceWarning) for category in seen) else 0

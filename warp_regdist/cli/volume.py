@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, load, parse_sources, read_xyz, solve,
+from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, exit_status, load, parse_sources, read_xyz, solve,
                      solver_options, subcommand, summary)
 
 
@@ -61,9 +61,10 @@ def add_parser(sub) -> None:
     solver_options(volume)
 
 
-def run(args: argparse.Namespace) -> None:
+def run(args: argparse.Namespace) -> int:
     import time
 
+    from ..atomic_write import write_atomic
     from ..output.export import save_vtu
     from ..output.render import render_cut
     from ..geometry.tetrahedralize import tetrahedralize
@@ -127,11 +128,14 @@ def run(args: argparse.Namespace) -> None:
         say(f"sampling the distance on a grid of {args.grid} points along the longest side...")
         grid = sample_on_grid(mesh, result.distance, args.grid)
         if args.grid_output.lower().endswith(".npz"):
-            np.savez(args.grid_output, values=grid.values, origin=grid.origin, spacing=grid.spacing)
+            write_atomic(args.grid_output, lambda tmp: np.savez(tmp, values=grid.values, origin=grid.origin,
+                                                                spacing=grid.spacing), "--grid-output")
         else:
-            np.save(args.grid_output, grid.values)
+            write_atomic(args.grid_output, lambda tmp: np.save(tmp, grid.values), "--grid-output",
+                         size=grid.values.nbytes + 128)
         written.append(f"{args.grid_output} ({' x '.join(map(str, grid.values.shape))} grid, origin "
                        f"{np.array2string(grid.origin, precision=4, separator=', ')}, spacing {grid.spacing:.4g}, "
                        "NaN outside)")
     if not args.quiet:
         print(f"{meshed}. " + summary(name, mesh, described, solver, result, written))
+    return exit_status(result)

@@ -15,7 +15,6 @@ camera.  The isolines and plane sections are the exact contours of
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 from matplotlib import colormaps
@@ -25,9 +24,10 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
+from ..atomic_write import write_atomic
 from .contours import isoline_segments, plane_section, surface_arrays, vertex_values
 
-__all__ = ["render_cut", "render_distance", "view_rotation"]
+__all__ = ["render_cut", "render_distance", "render_points", "view_rotation"]
 
 _DPI = 150
 _PANEL_WIDTH_IN = 4.6  # width of one view in inches
@@ -158,18 +158,18 @@ def _visible(ax, buffer, xy, code_min) -> np.ndarray:
     return code_min >= buffer[row, col]
 
 
-def _finish(fig, cax, norm, colormap, levels, unreachable, title, fig_h, path) -> None:
+def _finish(fig, cax, norm, colormap, levels, unreachable, title, fig_h, path, label="distance") -> None:
     """Colour bar (with the isoline levels) in ``cax``, the title, and the PNG at ``path``."""
     cbar = fig.colorbar(ScalarMappable(norm=norm, cmap=colormap), cax=cax)
     if len(levels):
         cbar.add_lines(levels, colors=[_ISOLINE_RGBA[:3]] * len(levels), linewidths=0.6)
     cbar.ax.tick_params(labelsize=8)
-    cbar.set_label("distance", fontsize=9)
+    cbar.set_label(label, fontsize=9)
     if unreachable:
         cax.text(0.5, -0.04, "grey:\nunreachable", transform=cax.transAxes, ha="center", va="top", fontsize=7)
     if title:
         fig.text(0.5, 1.0 - 0.1 / fig_h, title, ha="center", va="top", fontsize=11)
-    fig.savefig(os.fspath(path), format="png", dpi=_DPI)
+    write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=_DPI), "the picture")
 
 
 def render_distance(
@@ -182,6 +182,8 @@ def render_distance(
     view=None,
     cmap: str = "viridis",
     limits=None,
+    curves=None,
+    label: str = "distance",
 ) -> None:
     """Write a PNG of a triangle mesh coloured by a per-vertex field, with isolines.
 
@@ -215,6 +217,10 @@ def render_distance(
         Matplotlib colour map name.
     limits : (float, float) or None
         The values at the colour map's ends; None: the finite values' range.
+    curves : list of (c,) int or (c, 3) float arrays, optional
+        Polylines to draw on the surface (e.g. source curves), as vertex chains or points.
+    label : str
+        The colour bar's label.
     """
     vertices, faces = surface_arrays(mesh)
     values = vertex_values(values, len(vertices))
@@ -232,6 +238,12 @@ def render_distance(
         raise ValueError(
             f"expected source indices in [0, {len(vertices)}), got {sources.min()}..{sources.max()}"
         )
+
+    curve_points = []
+    for curve in curves or []:
+        curve = np.asarray(curve)
+        curve_points.append(vertices[curve] if np.issubdtype(curve.dtype, np.integer) else
+                            np.asarray(curve, dtype=np.float64).reshape(-1, 3))
 
     finite = np.isfinite(values)
     lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
@@ -310,6 +322,12 @@ def render_distance(
                 LineCollection(seg[keep, :, :2], colors=[_ISOLINE_RGBA], linewidths=0.7, capstyle="round"),
                 autolim=False,
             )
+        for curve in curve_points:
+            c = (curve - center) @ rot.T
+            seen = _visible(ax, buffer, c[:, :2], _depth_codes(c[:, 2] + 3.0 * lift, zlo, zhi))
+            pieces = np.stack([c[:-1, :2], c[1:, :2]], axis=1)[seen[:-1] & seen[1:]]
+            ax.add_collection(LineCollection(pieces, colors="#e41a1c", linewidths=2.0, capstyle="round", zorder=3),
+                              autolim=False)
         if sources.size:
             s = (vertices[sources] - center) @ rot.T
             keep = _visible(ax, buffer, s[:, :2], _depth_codes(s[:, 2] + 3.0 * lift, zlo, zhi))
@@ -325,7 +343,88 @@ def render_distance(
             0.8 * panel_h / fig_h,
         )
     )
-    _finish(fig, cax, norm, colormap, levels, not finite.all(), title, fig_h, path)
+    _finish(fig, cax, norm, colormap, levels, not finite.all(), title, fig_h, path, label)
+
+
+def render_points(
+    points,
+    values,
+    path,
+    sources=None,
+    title: str | None = None,
+    view=None,
+    cmap: str = "viridis",
+    limits=None,
+    label: str = "distance",
+) -> None:
+    """Write a PNG of a point cloud coloured by a per-point field: each point a disk (splat) the size
+    of its spacing, painted back to front, from the front and the back side by side.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    values : (n,) float
+        Value per point; ``inf``/``nan`` are drawn grey.
+    path : str or os.PathLike
+        Output file; written as PNG at 150 dpi.
+    sources : iterable of int, optional
+        Points to mark (red, on top, also where other points hide them).
+    title, view, cmap, limits, label
+        As in :func:`render_distance`.
+    """
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 2:
+        raise ValueError(f"expected points of shape (n, 3) with n >= 2, got shape {P.shape}")
+    values = vertex_values(values, len(P))
+    sources = np.unique(np.asarray([] if sources is None else list(sources), dtype=np.int64))
+    if sources.size and (sources.min() < 0 or sources.max() >= len(P)):
+        raise ValueError(f"expected source indices in [0, {len(P)}), got {sources.min()}..{sources.max()}")
+    views = _views(view, True)
+    colormap = colormaps[cmap]
+    finite = np.isfinite(values)
+    lo, hi = (values[finite].min(), values[finite].max()) if finite.any() else (0.0, 1.0)
+    if limits is not None:
+        lo, hi = (float(v) for v in limits)
+    norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
+    rgb = np.tile(_UNREACHABLE_RGB, (len(P), 1))
+    rgb[finite] = colormap(norm(values[finite]))[:, :3]
+    spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
+
+    center = 0.5 * (P.min(axis=0) + P.max(axis=0))
+    rotations = [view_rotation(P, az, el) for az, el in views]
+    if view is None and sources.size and len(rotations) == 2 and np.mean((P[sources] - center) @ rotations[0][2]) < 0:
+        rotations.reverse()
+    projected = [(P - center) @ r.T for r in rotations]
+    lows = [p[:, :2].min(axis=0) for p in projected]
+    highs = [p[:, :2].max(axis=0) for p in projected]
+    half = 0.5 * np.max(np.subtract(highs, lows), axis=0) * (1.0 + _MARGIN) + spacing   # room for the splats
+    half = np.maximum(half, 1e-12 + 0.02 * half.max())
+    panel_h = _PANEL_WIDTH_IN * half[1] / half[0]
+    top_in, bottom_in, cbar_in = (0.45 if title else 0.12), 0.12, 1.15
+    fig_w = _PANEL_WIDTH_IN * len(views) + cbar_in
+    fig_h = panel_h + top_in + bottom_in
+    fig = Figure(figsize=(fig_w, fig_h), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    fig.patch.set_facecolor("white")
+    size = (1.25 * spacing / (2.0 * half[0]) * _PANEL_WIDTH_IN * 72.0) ** 2   # marker area in points^2
+    for i, p in enumerate(projected):
+        ax = fig.add_axes((i * _PANEL_WIDTH_IN / fig_w, bottom_in / fig_h, _PANEL_WIDTH_IN / fig_w, panel_h / fig_h))
+        ax.set_axis_off()
+        mid = 0.5 * (lows[i] + highs[i])
+        ax.set_xlim(mid[0] - half[0], mid[0] + half[0])
+        ax.set_ylim(mid[1] - half[1], mid[1] + half[1])
+        order = np.argsort(p[:, 2], kind="stable")                    # far to near
+        depth = (p[order, 2] - p[:, 2].min()) / max(np.ptp(p[:, 2]), 1e-300)
+        shade = (_AMBIENT + (1.0 - _AMBIENT) * depth)[:, None]          # nearer points brighter
+        ax.scatter(p[order, 0], p[order, 1], s=size, c=rgb[order] * shade, marker="o", linewidths=0)
+        if sources.size:
+            ax.scatter(p[sources, 0], p[sources, 1], s=60, c="#e41a1c", edgecolors="white", linewidths=1.2,
+                       zorder=3, clip_on=False)
+    cax = fig.add_axes(((_PANEL_WIDTH_IN * len(views) + 0.15) / fig_w, (bottom_in + 0.1 * panel_h) / fig_h,
+                        0.16 / fig_w, 0.8 * panel_h / fig_h))
+    _finish(fig, cax, norm, colormap, np.empty(0), not finite.all(), title, fig_h, path, label)
 
 
 def render_cut(

@@ -5,6 +5,9 @@ by side. ``warp-regdist view MESH values.npy`` is the same from the command line
 
 from __future__ import annotations
 
+import os
+import sys
+
 import numpy as np
 
 from ..geometry.mesh import Mesh
@@ -51,6 +54,10 @@ def show(mesh, u, isolines=20, sources=None, names=None, backend=None, frames=No
     except ImportError:
         raise ModuleNotFoundError("expected the optional package 'polyscope' for show "
                                   "(pip install 'warp-regdist[view]'), got none installed") from None
+    if backend is None and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                                  or os.environ.get("WAYLAND_DISPLAY")):
+        raise ValueError("expected a display for the viewer window, got none (DISPLAY and WAYLAND_DISPLAY are "
+                         "unset): run it on a desktop, or write a picture instead (warp-regdist distance --png)")
     ps.set_use_prefs_file(False)  # no .polyscope.ini in the user's working directory
     ps.init(backend) if backend else ps.init()
     ps.remove_all_structures()

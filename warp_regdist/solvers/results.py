@@ -46,8 +46,11 @@ class DistanceResult(OptimizeResult):
     refined_mesh, refined_distance : Mesh, (n',) or (n', k) ndarray
         With points or curves as sources: the mesh refined at them (its first n vertices are
         this mesh's) and the distance on all its vertices; ``duals`` then belong to it.
-    signed_distance : (n,) or (n, k) ndarray
-        With ``closed=True`` on a triangle mesh: ``distance``, negative on the left of the curve.
+    refined_curves : list of (c,) ndarray of int, or k such lists
+        With curves as sources: each curve as its chain of ``refined_mesh`` vertices.
+    signed_distance, refined_signed_distance : (n,) or (n, k) ndarray, (n',) or (n', k) ndarray
+        With ``closed=True`` on a triangle mesh: ``distance`` (``refined_distance``), negative on the
+        left of the curve.
 
     Methods
     -------
@@ -167,4 +170,9 @@ class AllPairsResult(OptimizeResult):
     seconds : float
     memory_bytes : int
         Estimated footprint of the solver's arrays (device and host).
+    interrupted : bool
+        True when Ctrl-C stopped the run (``distance`` is the current iterate).
+    checkpoint, checkpoint_iteration : str or None, int or None
+        The checkpoint file, and the iteration of the state it holds (None where this run wrote none:
+        its saves failed, or it resumed a converged run's final checkpoint).
     """

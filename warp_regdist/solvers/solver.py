@@ -207,9 +207,11 @@ class DistanceSolver:
         res = self._solve_many(one(sources), verbose, initial, True, schedule, one(points), one(curve), closed)
         for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty", "error_estimate"):
             res[key] = res[key][0].item()
-        for key in ("distance", "refined_distance", "signed_distance"):
+        for key in ("distance", "refined_distance", "signed_distance", "refined_signed_distance"):
             if key in res:
                 res[key] = res[key][:, 0]
+        if "refined_curves" in res:
+            res["refined_curves"] = res["refined_curves"][0]
         res["duals"] = res["duals"][:, :, 0]
         return res
 

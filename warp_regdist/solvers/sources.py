@@ -165,6 +165,9 @@ def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, 
     res["refined_mesh"] = S.refinement.mesh
     res["refined_distance"] = res.distance
     res["distance"] = res.distance[:n]
+    res["refined_curves"] = S.curves
     if closed and solver.mesh.element_dim == 2:
-        res["signed_distance"] = np.stack([S.signs(j)[:n] for j in range(k)], axis=1) * res.distance
+        signs = np.stack([S.signs(j) for j in range(k)], axis=1)
+        res["refined_signed_distance"] = signs * res.refined_distance
+        res["signed_distance"] = signs[:n] * res.distance
     return res
