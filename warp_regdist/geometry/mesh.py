@@ -8,15 +8,16 @@ an index out of range, a NaN coordinate or a zero-volume element. Files are read
 from __future__ import annotations
 
 import hashlib
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
-from ..errors import MeshError
+from ..errors import MeshError, MeshWarning
 from ..tolerances import tolerances
 
-__all__ = ["Mesh", "boundary_vertices", "boundary_faces", "boundary_surface"]
+__all__ = ["Mesh", "boundary_vertices", "boundary_faces", "boundary_surface", "duplicate_vertices"]
 
 
 class Mesh:
@@ -87,6 +88,20 @@ class Mesh:
             self._check_manifold_edges()
         self._components = None
         self._sha256 = None
+        self._warn_duplicates()
+
+    def _warn_duplicates(self):
+        used = np.zeros(self.n_vertices, dtype=bool)
+        used[self.elements.ravel()] = True
+        pairs = duplicate_vertices(self.vertices, used)
+        if len(pairs):
+            a, b = pairs[0]
+            count = np.unique(pairs[:, 1]).size
+            lie = "vertex lies" if count == 1 else "vertices lie"
+            warnings.warn(f"{count} {lie} where another vertex of the mesh lies (first: "
+                          f"{a} and {b}): the mesh is cut there and no distance crosses the cut; merge them with "
+                          "warp_regdist.merge_duplicate_vertices(mesh)",
+                          MeshWarning, stacklevel=3)
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -190,6 +205,39 @@ class Mesh:
     def __repr__(self):
         kind = "triangles" if self.element_dim == 2 else "tetrahedra"
         return f"Mesh({self.n_vertices} vertices, {self.n_elements} {kind})"
+
+
+def duplicate_vertices(vertices, used=None):
+    """(p, 2) int64 pairs (i, j), i < j, of vertices at exactly the same position (among ``used``, (n,)
+    bool, when given); each vertex j of a group is paired with the group's first vertex i.
+
+    Rows are hashed (splitmix64 of the coordinates' bits, -0.0 as 0.0) and only rows whose hashes
+    collide are compared, so the cost is one sort of n integers."""
+    V = np.asarray(vertices, dtype=np.float64)
+    index = np.arange(len(V)) if used is None else np.flatnonzero(used)
+    bits = (V[index] + 0.0).view(np.uint64)
+    h = _mix(bits[:, 0] ^ _mix(bits[:, 1] ^ _mix(bits[:, 2])))
+    order = np.argsort(h)
+    tie = np.flatnonzero(h[order[1:]] == h[order[:-1]])
+    if tie.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    candidates = index[np.unique(np.concatenate([order[tie], order[tie + 1]]))]
+    rows = V[candidates]
+    ranked = candidates[np.lexsort(rows.T[::-1])]
+    starts = np.concatenate([[True], ~np.all(V[ranked[1:]] == V[ranked[:-1]], axis=1)])   # a new position
+    group = np.cumsum(starts) - 1
+    lead = np.minimum.reduceat(ranked, np.flatnonzero(starts))[group]     # the smallest index at each position
+    dup = ranked != lead
+    return np.stack([lead[dup], ranked[dup]], axis=1).astype(np.int64)
+
+
+def _mix(z):
+    """splitmix64's finalizer on uint64 arrays."""
+    z = z ^ (z >> np.uint64(30))
+    z = z * np.uint64(0xBF58476D1CE4E5B9)
+    z = z ^ (z >> np.uint64(27))
+    z = z * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
 
 
 def boundary_vertices(mesh):
