@@ -10,9 +10,11 @@ crashed ``all_pairs`` under load). So the solvers use more cores through process
   object ``factory(*args, index)`` and then runs the method calls the parent sends it over a
   pipe. The workers live in their own session: a Ctrl-C in the terminal reaches the parent
   only, which decides what it means (see :mod:`warp_regdist.solvers.interrupt`) and raises the
-  workers' shared stop flag. A worker exits within a fraction of a second of its parent's
-  death, however the parent died (SIGKILL, SIGTERM, the out-of-memory killer): a watchdog
-  thread compares its parent's pid with the one it was started by. A worker that dies makes
+  workers' shared stop flag. A worker dies with its parent, however the parent died (SIGKILL,
+  SIGTERM, the out-of-memory killer): the kernel kills it when the parent thread that started
+  it ends (``PR_SET_PDEATHSIG``), and a watchdog thread, which compares its parent's pid with
+  the one it was started by, covers the rest. So a pool must be used from the thread that
+  started it; a pool whose thread ended is found dead and replaced at its next use. A worker that dies makes
   the parent raise :class:`WorkerError` naming the worker and the signal, when the parent
   next waits for it, or earlier at :func:`check_workers` (the ADMM loop calls it before every
   test) while the parent runs its own part inside ``with watch(pool):``.
@@ -271,6 +273,23 @@ class _Channel:
         self._write.close()
 
 
+def _die_with_parent(parent):
+    """Have the kernel SIGKILL this process when the thread that started it ends (Linux
+    ``PR_SET_PDEATHSIG``: at once, whatever this process is doing), and exit now if the parent
+    ``parent`` (a pid) is already gone; False where the call is not available."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:   # PR_SET_PDEATHSIG
+            return False
+    except (OSError, AttributeError):
+        return False
+    if os.getppid() != parent:  # the parent died before the call
+        os._exit(1)
+    return True
+
+
 def _exit_with_parent(parent):
     """Exit this process as soon as its parent ``parent`` (a pid) is gone (it is then reparented)."""
     while os.getppid() == parent:
@@ -282,7 +301,8 @@ def _serve(read_fd, write_fd, parent):
     """Worker main loop: build the object, then answer method calls until told to stop or the parent dies."""
     import traceback
 
-    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+    _die_with_parent(parent)
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()  # where the kernel cannot
     os.dup2(2, 1)  # the channel is a pipe of its own; anything printed goes to stderr
     channel = _Channel(read_fd, write_fd)
     try:
