@@ -235,3 +235,18 @@ def test_max_distance_admits_points_farther_from_the_surface(meshes, tmp_path, c
     u = np.load(tmp_path / "u.npy")
     top = np.argmax(wrd.load_mesh(meshes / "sphere.off").vertices[:, 2])   # nearest to the point's foot (0, 0, 1)
     assert u[top] < 0.05 * u.max()
+
+
+def test_a_first_compile_is_announced(tmp_path, capsys, monkeypatch):
+    import warp as wp
+
+    from warp_regdist.cli.common import announce_compile
+
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
+    announce_compile("float32", quiet=False)
+    assert capsys.readouterr().err == (f"warp-regdist: compiling the Warp kernels for float32, once (seconds to a "
+                                       f"minute; they are cached in {tmp_path})\n")
+    (tmp_path / "wp_warp_regdist_pcg_float32_16_0123abc").mkdir()
+    announce_compile("float32", quiet=False)
+    announce_compile("float64", quiet=True)
+    assert capsys.readouterr().err == ""

@@ -1,5 +1,5 @@
 """The package's layout stays easy to see: no import circles between its modules, no module
-over 450 lines, and the module paths of earlier releases still import (with a warning)."""
+over 600 lines, and the module paths of earlier releases still import (with a warning)."""
 
 import ast
 import os
@@ -59,8 +59,9 @@ def test_no_import_circles():
             visit(name, [name])
 
 
-def test_no_module_over_450_lines():
-    long = {name: n for name, path in _modules().items() if (n := sum(1 for _ in open(path))) > 450}
+def test_no_module_over_600_lines():
+    """A few hundred lines is the norm; past 600 a module likely holds more than one concept."""
+    long = {name: n for name, path in _modules().items() if (n := sum(1 for _ in open(path))) > 600}
     assert long == {}
 
 

@@ -9,7 +9,8 @@ import tempfile
 
 import numpy as np
 
-from .common import check_output, exit_status, load, solver_options, subcommand, warn, warnings_to_stderr
+from .common import (announce_compile, check_output, exit_status, load, solver_options, subcommand, warn,
+                     warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -83,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         planned.append(checkpoint_room(args.checkpoint, checkpoint_bytes(n, mesh.n_elements, args.dtype,
                                                                         args.max_iterations)))
     check_room(planned)
+    announce_compile(args.dtype, args.quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
                            callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,

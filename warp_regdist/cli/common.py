@@ -58,7 +58,7 @@ def announce_compile(dtype: str, quiet: bool) -> None:
     folder = wp.config.kernel_cache_dir
     names = os.listdir(folder) if folder and os.path.isdir(folder) else []
     if not any("warp_regdist_" in name and f"_{dtype}_" in name for name in names):
-        print(f"{PROG}: compiling the Warp kernels for {dtype} (a minute or more, once: they are cached in "
+        print(f"{PROG}: compiling the Warp kernels for {dtype}, once (seconds to a minute; they are cached in "
               f"{folder})", file=sys.stderr, flush=True)
 
 
@@ -199,15 +199,16 @@ def warnings_to_stderr(reported_by_caller=()):
 
 
 def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
-          where=None, **regularization):
+          where=None, quiet: bool = False, **regularization):
     """Solve once; returns (solver, result), reporting non-convergence on stderr
-    (and, with ``verbose``, the ADMM's progress every 2 s on stderr). ``where``: the
+    (and, with ``verbose``, the ADMM's progress every 2 s on stderr; unless ``quiet``, a first
+    compile of the kernels). ``where``: the
     DistanceSolver.solve keywords points, curve, closed; ``regularization``: the DistanceSolver
     keywords regularizer, beta_hat, vector_field."""
     from .. import ConvergenceWarning, DistanceSolver
 
     solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
-    announce_compile(dtype, quiet=not verbose)
+    announce_compile(dtype, quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose, **(where or {}))
     if result.interrupted:

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
             f"{DEMO_SOURCE}, alpha_hat {DEMO_ALPHA_HAT}, {args.dtype}. Solving...",
             flush=True,
         )
-    solver, result = solve(mesh, [DEMO_SOURCE], DEMO_ALPHA_HAT, args.device, args.dtype)
+    solver, result = solve(mesh, [DEMO_SOURCE], DEMO_ALPHA_HAT, args.device, args.dtype, quiet=args.quiet)
     write_values(npy, result.distance)
     title = f"spot: regularized geodesic distance from vertex {DEMO_SOURCE}, alpha_hat {DEMO_ALPHA_HAT:g}"
     render_distance(mesh, result.distance, png, sources=[DEMO_SOURCE], title=title)

@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         where["closed"] = args.closed
         described.append(("the closed curve through " if args.closed else "the curve through ") + text)
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
-                           where=where, **_regularization(args, mesh))
+                           where=where, quiet=args.quiet, **_regularization(args, mesh))
     if args.polish and result.converged:
         result = result.polish()
     elif args.polish:

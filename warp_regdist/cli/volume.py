@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
         more = f", ... ({sources.size} in all)" if sources.size > LISTED_SOURCES else ""
         described = (f"{len(points)} surface points, vertices {listed}{more} (moved onto the surface by at most "
                      f"{moved.max():.3g})")
-    solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet)
+    solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
+                           quiet=args.quiet)
     save_vtu(args.output, mesh, {"distance": result.distance})
     written = [args.output]
     if args.png is not None:

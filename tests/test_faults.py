@@ -1,0 +1,379 @@
+"""Faults at the edges: full disks, flipped bits, errors while releasing, progress that a rerun would
+overwrite, numbers too large, long runs, foreign Zarr stores, stale temporary files, signals and
+dead workers; each through the library and, where a user meets it, through the real command line."""
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import types
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+import meshes
+import warp_regdist as wrd
+import warp_regdist.atomic_write as atomic_write
+import warp_regdist.cli.allpairs as cli_allpairs
+import warp_regdist.solvers.all_pairs_admm as ap
+import warp_regdist.solvers.all_pairs_run as all_pairs_run
+from warp_regdist.atomic_write import check_room, remove_stale_temporaries, write_atomic
+from warp_regdist.cli import main
+from warp_regdist.file_lock import FileLock
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    V, F = meshes.icosphere(2, 1.0)
+    return wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=3), F)
+
+
+@pytest.fixture(scope="module")
+def sphere_file(sphere, tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "sphere.off"
+    trimesh.Trimesh(sphere.vertices, sphere.elements, process=False).export(path)
+    return path
+
+
+def _cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    err = "".join(line for line in err.splitlines(keepends=True) if not line.startswith("warp-regdist: compiling"))
+    return code, out, err
+
+
+def _full_disk_writer(written=1000):
+    """A writer that puts ``written`` bytes into its file, then fails as a full disk does."""
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(b"x" * written)
+        raise OSError(errno.ENOSPC, "No space left on device")
+    return write
+
+
+# ------------------------------------------------------------------ atomic writes
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / "U.npy"
+    np.save(path, np.arange(3.0))
+    with pytest.raises(wrd.WriteError, match=r"could not write --output '.*U\.npy': No space left on device "
+                                            r"\(1 kB were written, .* free\); the existing file there is unchanged"
+                       ) as caught:
+        write_atomic(path, _full_disk_writer(), "--output")
+    assert caught.value.errno == errno.ENOSPC
+    assert np.array_equal(np.load(path), np.arange(3.0))
+    assert sorted(os.listdir(tmp_path)) == ["U.npy"]
+
+
+def test_a_write_larger_than_the_free_space_is_refused_unwritten(tmp_path, monkeypatch):
+    path = tmp_path / "U.npy"
+    monkeypatch.setattr(atomic_write.shutil, "disk_usage", lambda folder: types.SimpleNamespace(free=2_000_000))
+    with pytest.raises(wrd.WriteError, match=r"could not write --output '.*U\.npy': it needs 3\.3 MB and its file "
+                                            r"system has 2 MB free$"):
+        write_atomic(path, lambda tmp: pytest.fail("written"), "--output", size=3_300_000)
+    assert not path.exists()
+
+
+def test_room_is_counted_per_file_system_for_all_outputs(tmp_path, monkeypatch):
+    monkeypatch.setattr(atomic_write.shutil, "disk_usage", lambda folder: types.SimpleNamespace(free=5_000_000))
+    check_room([(tmp_path / "a", 2_000_000, "a"), (tmp_path / "b", 3_000_000, "b")])
+    with pytest.raises(ValueError, match=r"expected 5\.5 MB free for a '.*a' \(2 MB\) and b '.*b' \(3\.5 MB\), got "
+                                         r"5 MB free on the file system of '.*'"):
+        check_room([(tmp_path / "a", 2_000_000, "a"), (tmp_path / "b", 3_500_000, "b")])
+
+
+def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    stale = tmp_path / f"run.npz.tmp{pid}.npz"
+    live = tmp_path / f"run.npz.tmp{os.getppid()}.npz"   # a running process's: kept
+    other = tmp_path / f"other.npz.tmp{pid}"
+    for p in (stale, live, other):
+        p.write_bytes(b"partial")
+    assert remove_stale_temporaries(tmp_path / "run.npz") == [stale.name]
+    assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_releasing_a_lock_never_raises(tmp_path, monkeypatch):
+    lock = FileLock(tmp_path / "run.npz").acquire()
+
+    def refuse(path):
+        raise PermissionError(errno.EPERM, "Operation not permitted", path)
+
+    monkeypatch.setattr(os, "remove", refuse)
+    lock.release()                        # the lock file stays; it holds no lock
+    monkeypatch.undo()
+    FileLock(tmp_path / "run.npz").acquire().release()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.geteuid() != 0, reason="mounts a tmpfs (root, Linux)")
+def test_allpairs_on_a_full_file_system_keeps_the_old_output(sphere_file, tmp_path, capsys):
+    small = tmp_path / "small"
+    small.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=100k", "tmpfs", str(small)], capture_output=True).returncode:
+        pytest.skip("tmpfs cannot be mounted here")
+    try:
+        (small / "U.npy").write_bytes(b"the good old matrix")
+        code, out, err = _cli(capsys, "allpairs", sphere_file, "--output", small / "U.npy", "--max-iterations", "5",
+                              "--device", "cpu")
+        assert code == 2 and out == ""
+        assert err.startswith("warp-regdist: error: expected 210 kB free for --output '") and "got " in err
+        assert (small / "U.npy").read_bytes() == b"the good old matrix"
+        assert sorted(os.listdir(small)) == ["U.npy"]
+    finally:
+        subprocess.run(["umount", str(small)], check=True)
+
+
+def test_a_final_write_that_fails_says_where_the_matrix_is(sphere_file, tmp_path, capsys, monkeypatch):
+    out, ckpt = tmp_path / "U.npy", tmp_path / "run.npz"
+    out.write_bytes(b"the good old matrix")
+    save = np.save
+
+    def full_disk_for_the_output(file, array, *args, **kwargs):
+        if str(file).startswith(str(out)):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return save(file, array, *args, **kwargs)
+
+    monkeypatch.setattr(cli_allpairs.np, "save", full_disk_for_the_output)
+    code, _, err = _cli(capsys, "allpairs", sphere_file, "--output", out, "--checkpoint", ckpt, "--max-iterations",
+                        "5", "--device", "cpu", "--quiet")
+    assert code == 2
+    assert (f"; the existing file there is unchanged; the matrix is in the checkpoint '{ckpt}': run the same command "
+            f"with --resume {ckpt} and an --output where there is room") in err
+    assert out.read_bytes() == b"the good old matrix"
+    code, _, err = _cli(capsys, "allpairs", sphere_file, "--output", out, "--max-iterations", "5", "--device", "cpu",
+                        "--quiet")
+    rescue = err.split("the matrix was written to '")[1].split("'")[0]
+    assert code == 2 and os.path.isfile(rescue)
+    monkeypatch.undo()
+    U = np.load(rescue)
+    os.remove(rescue)
+    assert U.shape == (162, 162) and np.array_equal(U, U.T)
+
+
+def test_a_checkpoint_save_that_fails_warns_once_and_the_run_goes_on(sphere, tmp_path, monkeypatch):
+    whole = _quiet_all_pairs(sphere, max_iterations=12)
+    calls = []
+    savez = np.savez
+
+    def third_and_later_fail(file, **arrays):
+        calls.append(1)
+        if len(calls) >= 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return savez(file, **arrays)
+
+    monkeypatch.setattr(all_pairs_run.np, "savez", third_and_later_fail)
+    with pytest.warns(wrd.CheckpointWarning) as caught:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+            res = wrd.all_pairs(sphere, 0.03, device="cpu", max_iterations=12, checkpoint=tmp_path / "run.npz",
+                                checkpoint_seconds=1e-9)
+    messages = [str(w.message) for w in caught if issubclass(w.category, wrd.CheckpointWarning)]
+    assert len(messages) == 1 and "the checkpoint of iteration 2 stays valid" in messages[0], messages
+    assert len(calls) > 3 and res.checkpoint_iteration == 2
+    assert np.array_equal(res.distance, whole.distance)
+    assert sorted(os.listdir(tmp_path)) == ["run.npz"]
+
+
+# ------------------------------------------------------------------ damaged files
+
+def _quiet_all_pairs(mesh, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+        return wrd.all_pairs(mesh, 0.03, device="cpu", **kwargs)
+
+
+def test_a_flipped_bit_in_a_checkpoint_is_refused_before_allocation(sphere, tmp_path, monkeypatch):
+    path = tmp_path / "run.npz"
+    _quiet_all_pairs(sphere, max_iterations=4, checkpoint=path)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    path.write_bytes(bytes(data))
+    monkeypatch.setattr(ap, "SymmetricADMM", lambda *a, **k: pytest.fail("allocated before the check"))
+    with pytest.raises(ValueError, match=r"expected resume as an intact all-pairs checkpoint, got '.*run\.npz' whose "
+                                         r"array '\w+' cannot be read back as written \(BadZipFile: Bad CRC-32"):
+        wrd.all_pairs(sphere, 0.03, device="cpu", max_iterations=8, resume=path)
+
+
+def test_a_flipped_bit_in_a_matrix_block_is_refused_before_any_work(sphere, tmp_path, monkeypatch):
+    out = tmp_path / "D.npy"
+
+    def stop(done, total, seconds):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        wrd.distance_matrix(sphere, sources=[0, 5, 9, 30, 40, 50], chunk=2, out=str(out), progress=stop)
+    data = bytearray(out.read_bytes())
+    data[128 + 8 * (2 * 162 + 7)] ^= 0x01        # row 2 (block 1), vertex 7
+    out.write_bytes(bytes(data))
+    import warp_regdist.matrices.source_rows as source_rows
+    monkeypatch.setattr(source_rows, "DistanceSolver", lambda *a, **k: pytest.fail("solved before the check"))
+    with pytest.raises(ValueError, match=r"expected block 1 \(rows 2\.\.3\) of '.*D\.npy' to hold the values written "
+                                         r"there \(CRC-32 \d+\), got CRC-32 \d+: the file changed on the disk; remove "
+                                         r"'.*rows-0000001' to solve that block again"):
+        wrd.distance_matrix(sphere, sources=[0, 5, 9, 30, 40, 50], chunk=2, out=str(out))
+    os.remove(tmp_path / "D.npy.progress" / "rows-0000001")
+    monkeypatch.undo()
+    D = wrd.distance_matrix(sphere, sources=[0, 5, 9, 30, 40, 50], chunk=2, out=str(out))
+    whole = wrd.distance_matrix(sphere, sources=[0, 5, 9, 30, 40, 50], chunk=2)
+    assert np.array_equal(np.asarray(D), whole)
+
+
+@pytest.mark.parametrize("meta, got", [
+    ({"zarr_format": 3, "node_type": "array", "data_type": "float64", "codecs": [{"name": "bytes"}, {"name": "pickle"}]},
+     r"got format 3, node 'array', data type 'float64', codecs \['bytes', 'pickle'\]; it was not read"),
+    ({"zarr_format": 3, "node_type": "array", "data_type": "object", "codecs": [{"name": "vlen-bytes"}]},
+     r"got format 3, node 'array', data type 'object', codecs \['vlen-bytes'\]; it was not read"),
+    (None, r"got no readable '.*D\.zarr/zarr\.json'"),
+])
+def test_a_zarr_store_with_foreign_codecs_is_refused_unread(sphere, tmp_path, monkeypatch, meta, got):
+    zarr = pytest.importorskip("zarr")
+    out = tmp_path / "D.zarr"
+
+    def stop(done, total, seconds):
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        wrd.distance_matrix(sphere, sources=[0, 5, 9, 30], chunk=2, out=str(out), progress=stop)
+    if meta is None:   # a zarr 2 store: .zarray (it may carry a pickle filter) instead of zarr.json
+        os.remove(out / "zarr.json")
+        (out / ".zarray").write_text(json.dumps({"zarr_format": 2, "filters": [{"id": "pickle"}]}))
+    else:
+        (out / "zarr.json").write_text(json.dumps(meta))
+    monkeypatch.setattr(zarr, "open_array", lambda *a, **k: pytest.fail("zarr opened the store"))
+    with pytest.raises(ValueError, match=r"expected '.*D\.zarr' as a Zarr v3 .*" + got):
+        wrd.distance_matrix(sphere, sources=[0, 5, 9, 30], chunk=2, out=str(out))
+
+
+# ------------------------------------------------------------------ progress a rerun would lose
+
+def test_a_checkpoint_holding_progress_is_refused_without_resume_or_restart(sphere, sphere_file, tmp_path, capsys):
+    ckpt, out = tmp_path / "run.npz", tmp_path / "U.npy"
+    args = ["allpairs", sphere_file, "--output", out, "--checkpoint", ckpt, "--max-iterations", "6", "--device", "cpu",
+            "--quiet"]
+    assert _cli(capsys, *args)[0] == 1                   # written, not converged
+    before = ckpt.read_bytes()
+    code, _, err = _cli(capsys, *args)
+    assert code == 2 and err == (f"warp-regdist: error: expected --checkpoint as a new file or the one resumed, got "
+                                 f"'{ckpt}' holding a checkpoint at iteration 6: --resume '{ckpt}' continues it, "
+                                 "--restart discards it\n")
+    assert ckpt.read_bytes() == before
+    with pytest.raises(ValueError, match=r"expected checkpoint as a new file or the one resumed, got '.*run\.npz' "
+                                         r"holding a checkpoint at iteration 6: resume='.*run\.npz' continues it, "
+                                         r"restart=True discards it"):
+        wrd.all_pairs(sphere, 0.03, device="cpu", checkpoint=ckpt)
+    assert _cli(capsys, *args, "--resume", ckpt, "--max-iterations", "8")[0] == 1
+    assert _cli(capsys, *args, "--restart")[0] == 1
+    assert _cli(capsys, *args, "--restart")[0] == 1
+
+
+# ------------------------------------------------------------------ numbers
+
+@pytest.mark.parametrize("sources", ["99999999999999999999999", "3,-99999999999999999999999"])
+def test_huge_source_indices_are_one_line_errors(sphere_file, tmp_path, capsys, sources):
+    code, out, err = _cli(capsys, "distance", sphere_file, "--sources", sources, "--output", tmp_path / "u.npy")
+    bad = sources.split(",")[-1]
+    assert code == 2 and out == ""
+    assert err == f"warp-regdist: error: expected --sources in [0, 161] (the mesh has 162 vertices), got {bad}\n"
+    landmarks = tmp_path / "landmarks.txt"
+    landmarks.write_text(sources.replace(",", "\n"))
+    code, out, err = _cli(capsys, "matrix", sphere_file, "--sources", landmarks, "--output", tmp_path / "D.npy")
+    assert code == 2 and err == (f"warp-regdist: error: expected vertex indices in [0, 161] in --sources "
+                                 f"'{landmarks}' (the mesh has 162 vertices), got {bad}\n")
+
+
+def test_a_run_past_ten_thousand_iterations_ends_unconverged_with_a_warning():
+    schedule = wrd.PenaltySchedule(0.5, 4.0, 10.0, 1.0)
+    assert schedule.rho(10**9) == 4.0 and schedule.rho(10_240) == 4.0
+    V, F = meshes.icosphere(1, 1.0)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu")
+    with wrd.tolerances.override(max_iterations=12_000, eps_rel=1e-30, eps_change=0.0), \
+            pytest.warns(wrd.ConvergenceWarning, match="did not converge in 12000 iterations"):
+        res = solver.solve([0])
+    assert res.iterations == 12_000 and not res.converged and np.isfinite(res.distance).all()
+
+
+# ------------------------------------------------------------------ signals, workers, exit status
+
+def test_exit_status_is_130_when_interrupted_in_every_solving_subcommand(sphere_file, tmp_path, capsys, monkeypatch):
+    def ctrl_c_at_three(progress):
+        if progress.iteration == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda: ctrl_c_at_three)
+    code, out, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "U.npy", "--checkpoint",
+                          tmp_path / "run.npz", "--device", "cpu")
+    assert code == 130 and "interrupted at ADMM iteration 4" in err and "NOT converged" in out
+    assert np.load(tmp_path / "U.npy").shape == (162, 162)
+
+    def second_ctrl_c(progress):
+        raise KeyboardInterrupt   # what a second Ctrl-C raises
+
+    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda: second_ctrl_c)
+    code, out, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "V.npy", "--device", "cpu")
+    assert (code, out, err) == (130, "", "warp-regdist: interrupted\n")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker processes need Linux")
+def test_a_dead_worker_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
+    V, F = meshes.icosphere(3, 1.0)
+    path = tmp_path / "ico3.off"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    from test_worker_processes import _worker_pids
+    others = _worker_pids(os.getpid())
+
+    def kill_the_worker(progress):
+        if progress.iteration == 2:
+            for worker in _worker_pids(os.getpid()) - others:
+                os.kill(worker, signal.SIGKILL)
+                os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)
+
+    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda: kill_the_worker)
+    code, out, err = _cli(capsys, "allpairs", path, "--output", tmp_path / "U.npy", "--workers", "2", "--device", "cpu",
+                          "--dtype", "float32")
+    assert code == 2 and out == ""
+    assert len(err.splitlines()) == 1 and err.startswith("warp-regdist: error: worker process 1 (pid ")
+    assert "was killed by SIGKILL" in err
+
+
+def test_duplicate_vertices_warn_and_merge(sphere):
+    V = np.vstack([sphere.vertices, sphere.vertices[[0]]])
+    F = sphere.elements.copy()
+    fan = np.flatnonzero((F == 0).any(axis=1))[:2]
+    F[fan] = np.where(F[fan] == 0, len(V) - 1, F[fan])     # two faces of vertex 0 use its copy
+    with pytest.warns(wrd.MeshWarning, match=r"^1 vertex lies where another vertex of the mesh lies \(first: 0 and "
+                                             r"162\): the mesh is cut there and no distance crosses the cut; merge them "
+                                             r"with warp_regdist.merge_duplicate_vertices\(mesh\)"):
+        cut = wrd.Mesh(V, F)
+    merged, index = wrd.merge_duplicate_vertices(cut)
+    assert merged.n_vertices == 162 and index[162] == 0 and np.array_equal(index[:162], np.arange(162))
+    assert np.array_equal(merged.elements, sphere.elements)
+    u = wrd.DistanceSolver(merged, 0.05, device="cpu").solve([0]).distance[index]
+    assert u[162] == 0.0 and u[0] == 0.0
+
+
+# ------------------------------------------------------------------ a quiet command line and library
+
+def test_the_library_prints_nothing_on_stdout(tmp_path):
+    script = ("import warp_regdist as wrd, trimesh\n"
+              "s = trimesh.creation.icosphere(1)\n"
+              "wrd.DistanceSolver(wrd.Mesh(s.vertices, s.faces), 0.1, device='cpu').solve([0])\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout == ""
+
+
+def test_allpairs_progress_is_one_line_per_window_with_every_stop_test(sphere_file, tmp_path, capsys):
+    code, _, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "U.npy", "--max-iterations", "160",
+                        "--device", "cpu")
+    lines = [line for line in err.splitlines() if line.startswith("  iteration")]
+    assert [line.split(":")[0] for line in lines] == ["  iteration 50", "  iteration 100", "  iteration 150"]
+    assert all("max residual/tolerance " in line and "change to come " in line and "gradient excess " in line
+               for line in lines)
+    assert "change to come inf/0.003 (holding it back)" in lines[0]
