@@ -47,13 +47,6 @@ def load(name):
     return wrd.load_mesh(os.path.join(os.path.dirname(wrd.__file__), "data", f"{spec}.off"))
 
 
-def _cap_iterations(cap):
-    import warp_regdist as wrd
-
-    wrd.tolerances.max_iterations = cap
-    warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-
-
 def _cpu_seconds():
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
@@ -66,28 +59,22 @@ def _max_rss_gb():
 def run_case(spec):
     """spec = MESH:ENGINE:WORKERS:CHUNK:SOURCES:CAP:RUN:FOLDER, ENGINE 'cluster' (LocalCluster processes) or
     'local', CAP the ADMM iteration cap (0: the default), RUN the index of the run (a fresh output each)."""
-    import warp as wp
-
     import warp_regdist as wrd
 
     name, engine, workers, chunk, k, cap, run, keep = spec.split(":", 7)
     case, workers, chunk, k, cap = f"{name}:{engine}:{workers}", int(workers), int(chunk), int(k), int(cap)
-    if cap:
-        _cap_iterations(cap)
-    wp.config.quiet = True
+    warnings.simplefilter("ignore", wrd.ConvergenceWarning)
     mesh = load(name)
     sources = np.random.default_rng(0).choice(mesh.n_vertices, k, replace=False)
     out = os.path.join(keep, f"{case.replace(':', '_')}_{run}.npy")
     row = dict(mesh=name, n=mesh.n_vertices, sources=k, chunk=chunk, engine=engine, workers=workers,
                iteration_cap=cap or "default")
-    kwargs = dict(sources=sources, chunk=chunk, out=out)
+    kwargs = dict(sources=sources, chunk=chunk, out=out, options=wrd.SolverOptions(max_iterations=cap) if cap else None)
     if engine == "cluster":
         from distributed import Client, LocalCluster
 
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
                 Client(cluster) as client:
-            if cap:
-                client.run(_cap_iterations, cap)
             cpu = client.run(_cpu_seconds)
             t0 = time.perf_counter()
             wrd.distance_matrix(mesh, 0.05, client=client, **kwargs)

@@ -51,13 +51,12 @@ def main():
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
     for name, alpha_hat, kwargs in cases(mesh):
         solver = wrd.DistanceSolver(mesh, alpha_hat=alpha_hat, device="cpu", **kwargs)
-        t = wrd.tolerances
-        with t.override(eps_rel=t.eps_rel / 10, eps_rel_dual=t.eps_rel_dual / 10, max_iterations=3 * MAX_ITERATIONS):
-            tight = solver.solve([source]).distance
+        t = solver.options
+        tight = solver.solve([source], eps_rel=t.eps_rel / 10, eps_rel_dual=t.eps_rel_dual / 10,
+                             max_iterations=3 * MAX_ITERATIONS).distance
         for schedule, override in (("varied", {}), ("fixed", dict(rho0=2.0, rho_doubling=float("inf")))):
-            with t.override(max_iterations=MAX_ITERATIONS, **override):
-                solver.solve([source])
-                res = solver.solve([source])
+            solver.solve([source], max_iterations=MAX_ITERATIONS, **override)
+            res = solver.solve([source], max_iterations=MAX_ITERATIONS, **override)
             rows.append(dict(regularizer=name, alpha_hat=alpha_hat, rho=schedule, vertices=mesh.n_vertices,
                              admm_iterations=res.iterations, converged=res.converged, cg_iterations=res.cg_iterations,
                              cg_per_admm=res.cg_iterations / max(res.iterations, 1), seconds=res.seconds,

@@ -129,11 +129,8 @@ def run_batch(k):
     solver.solve_many(sets)  # warm-up: load this batch width's kernels
     solver.solve([sources[0]])
     batch = solver.solve_many(sets)
-    from warp_regdist.solvers import solver as solver_module
-    blocks, solver_module._CPU_BLOCKS = solver_module._CPU_BLOCKS, len(sets)   # A/B: every lane block at once
-    solver.solve_many(sets)
-    all_blocks = solver.solve_many(sets)
-    solver_module._CPU_BLOCKS = blocks
+    solver.solve_many(sets, cpu_blocks=len(sets))   # A/B: every lane block at once
+    all_blocks = solver.solve_many(sets, cpu_blocks=len(sets))
     first = parallel_solver.solve_many(sets)  # includes starting the worker processes
     parallel = parallel_solver.solve_many(sets)
     parallel_solver.close()

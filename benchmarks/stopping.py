@@ -43,7 +43,7 @@ from report import markdown_table, write_csv  # noqa: E402
 RESULTS = os.path.join(HERE, "results", "stopping.csv")
 PREVIOUS = dict(single=dict(eps_rel=2.5e-4, eps_rel_dual=0.15, rho0=0.5, rho_max=8.0, rho_doubling=30.0,
                             eps_change=math.inf),
-                pairs=dict(pairs_eps_change=math.inf))
+                pairs=dict(eps_change=math.inf))
 """The defaults before issue 13 (eps_change inf: no change test)."""
 
 
@@ -137,8 +137,7 @@ def run_single(cache):
         solver = wrd.DistanceSolver(mesh, alpha_hat, device="cpu", workers=1)
         row = dict(solver="single", mesh=name, n=mesh.n_vertices, sources=label, alpha_hat=alpha_hat)
         for tag, settings in (("", {}), ("previous_", PREVIOUS["single"])):
-            with wrd.tolerances.override(**settings):
-                res = solver.solve(sources)
+            res = solver.solve(sources, **settings)
             row.update({f"{tag}iterations": int(res.iterations), f"{tag}error_pct": error_pct(res.distance, exact),
                         f"{tag}seconds": res.seconds})
             if not tag:
@@ -177,9 +176,9 @@ def run_pairs(cache, alpha_hats, cached_only, larger=False):
             row = dict(solver="all_pairs", mesh=name, n=mesh.n_vertices, sources="all", alpha_hat=alpha_hat,
                        reference_seconds=time.perf_counter() - t0)
             for tag, settings in (("", {}), ("previous_", PREVIOUS["pairs"])):
-                with warnings.catch_warnings(), wrd.tolerances.override(**settings):
+                with warnings.catch_warnings():
                     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-                    res = wrd.all_pairs(mesh, alpha_hat, device="cpu", workers=1)
+                    res = wrd.all_pairs(mesh, alpha_hat, device="cpu", workers=1, **settings)
                 row.update({f"{tag}iterations": int(res.iterations), f"{tag}error_pct": error_pct(res.distance, exact),
                             f"{tag}seconds": res.seconds, f"{tag}converged": bool(res.converged)})
             rows.append(row)

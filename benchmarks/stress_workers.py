@@ -42,8 +42,8 @@ sys.path.insert(0, {here!r})
 import meshes, warnings, warp_regdist as wrd
 mesh = meshes.shared_mesh("spot_rr") or meshes.cube_sphere(28)
 warnings.simplefilter("ignore")
-with wrd.tolerances.override(max_iterations={iterations}):
-    res = wrd.DistanceSolver(mesh, alpha_hat=0.05, dtype="float32", workers=2).solve_many([[i] for i in range(32)])
+res = wrd.DistanceSolver(mesh, alpha_hat=0.05, dtype="float32", workers=2).solve_many([[i] for i in range(32)],
+                                                                                 max_iterations={iterations})
 print("OK", int(res.iterations.max()), float(res.distance.max()))
 """,
 }

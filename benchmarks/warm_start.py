@@ -19,7 +19,7 @@ Columns: ADMM and CG iterations; solve seconds (median of 3, of 1 on the large m
 seconds of a warm start including its coarse work (decimation, coarse solvers' setup, coarse
 solves, prolongation; the answer a continuation or neighbour starts from is given, as in
 its use); error = max over vertices vs a tight solve of the fine problem
-(``tolerances.override(**TIGHT)``), in % of its max, of the cold and warm answers and of the
+(the solve's options at ``TIGHT``), in % of its max, of the cold and warm answers and of the
 start. The fine solver's setup is common to both and left out. Prints a markdown table and
 writes benchmarks/results/warm_start.csv after each mesh.
 """
@@ -127,8 +127,7 @@ def run_mesh(name, repeats):
     reference, reference_it, cold = {}, {}, {}
     for a, s in sorted(problems):
         t = time.perf_counter()
-        with wrd.tolerances.override(**TIGHT):
-            ref = solvers[a].solve([s])
+        ref = solvers[a].solve([s], **TIGHT)
         reference[a, s] = ref.distance
         reference_it[a, s] = f"{ref.iterations}" + " (not converged)" * (not ref.converged)
         cold[a, s] = [solvers[a].solve([s]) for _ in range(repeats)]

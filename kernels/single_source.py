@@ -30,9 +30,46 @@ LANE_ROWS = 20
 
 
 @functools.cache
+def device_rule_type(scalar):
+    """The Warp struct of the constants of ``admm_check``'s stopping test and CG tolerance rule in ``scalar``."""
+
+    @wp.struct
+    class DeviceRule:
+        eps_pri_abs: scalar
+        eps_rel: scalar
+        eps_rel_dual: scalar
+        eps_change: scalar
+        eps_estimate: scalar
+        cg_fraction: scalar
+        cg_primal: scalar
+        alpha: scalar
+        shift: scalar
+        scale: scalar
+        length: scalar
+
+    return DeviceRule
+
+
+RULE_FIELDS = ("eps_pri_abs", "eps_rel", "eps_rel_dual", "eps_change", "eps_estimate", "cg_fraction", "cg_primal",
+               "alpha", "shift", "scale", "length")
+
+
+def rule_struct(scalar, values):
+    """A ``device_rule_type(scalar)`` struct from ``values`` ({field: number}, every field of RULE_FIELDS)."""
+    missing = set(RULE_FIELDS) ^ set(values)
+    if missing:
+        raise ValueError(f"expected the fields {list(RULE_FIELDS)}, got {sorted(values)}")
+    rule = device_rule_type(scalar)()
+    for name in RULE_FIELDS:
+        setattr(rule, name, scalar(values[name]))
+    return rule
+
+
+@functools.cache
 def single_source_kernels(scalar, W, k):
     """Single-source ADMM kernels for lane vectors of W ``scalar`` values on elements with k vertices."""
     V = lane_type(scalar, W)
+    Rule = device_rule_type(scalar)
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_single_source_{scalar.__name__}_{W}_{k}")
     one = scalar(1.0)
@@ -181,9 +218,7 @@ def single_source_kernels(scalar, W, k):
     @wp.kernel(enable_backward=False, module=module)
     def admm_check(acc: wp.array2d(dtype=V), lane: wp.array2d(dtype=V), rho: wp.array(dtype=V),
                    step: wp.array(dtype=wp.int32), rho_table: wp.array(dtype=scalar), window: int,
-                   eps_pri_abs: scalar, eps_rel: scalar, eps_rel_dual: scalar, eps_change: scalar,
-                   eps_estimate: scalar, cg_fraction: scalar, cg_primal: scalar, alpha: scalar, shift: scalar,
-                   scale: scalar, length: scalar, atol2: wp.array(dtype=V)):
+                   rule: Rule, atol2: wp.array(dtype=V)):
         """Top of iteration it, per lane of block b: the residuals of the last iterate (it > 0),
 
             r = |sqrt(M_F)(G u - z)|,  s = rho_old |D (z - z_old)|,
@@ -197,8 +232,12 @@ def single_source_kernels(scalar, W, k):
         and the u-step's CG tolerance per lane,
             atol = min(cg_fraction (eps_dual_abs + dy), eps_dual / 10) / (shift + scale rho),
             atol = min(atol, cg_primal r (alpha + rho) / (shift + scale rho))   (it > 0),
-        into atol2 (squared); clears acc for the iteration.
+        into atol2 (squared); clears acc for the iteration. The constants are the fields of ``rule``.
         """
+        eps_pri_abs, eps_rel, eps_rel_dual = rule.eps_pri_abs, rule.eps_rel, rule.eps_rel_dual
+        eps_change, eps_estimate = rule.eps_change, rule.eps_estimate
+        cg_fraction, cg_primal = rule.cg_fraction, rule.cg_primal
+        alpha, shift, scale, length = rule.alpha, rule.shift, rule.scale, rule.length
         b = wp.tid()
         it = step[IT]
         rho_new = rho_table[it % rho_table.shape[0]]

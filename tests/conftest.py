@@ -6,6 +6,8 @@ import sys
 import pytest
 import warp as wp
 
+import warp_regdist as wrd
+
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 DEVICES = ["cpu"] + (["cuda"] if wp.get_cuda_device_count() > 0 else [])
@@ -17,16 +19,7 @@ def device(request):
     return request.param
 
 
-TIGHT = dict(eps_abs=1e-7, eps_rel=1e-5, eps_rel_dual=1e-3)
+TIGHT = wrd.SolverOptions(eps_abs=1e-7, eps_rel=1e-5, eps_rel_dual=1e-3)
 """ADMM stopping tolerances 50-100x below the defaults. The tests that use them accept
 1e-3 of the maximal distance (or compare at the 1e-4 level on the cylinder and the disk);
 the exact discrete minimizer is reached to ~5e-4 on spot, ~1e-4 on small meshes."""
-
-
-@pytest.fixture
-def tight_tolerances():
-    """Run the test with the tolerances of `TIGHT`, restoring the defaults afterwards."""
-    import warp_regdist as wrd
-
-    with wrd.tolerances.override(**TIGHT):
-        yield

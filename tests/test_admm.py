@@ -7,6 +7,7 @@ all pairs) within 1e-3 of the maximal distance.
 """
 
 import copy
+import dataclasses
 import math
 import os
 import signal
@@ -24,6 +25,11 @@ from warp_regdist import PenaltySchedule
 PAIRS = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
 
 
+def _tight(**changes):
+    """The fields of conftest.TIGHT with ``changes``, as per-call keyword options."""
+    return {f.name: getattr(TIGHT, f.name) for f in dataclasses.fields(TIGHT)} | changes
+
+
 def test_schedule_values_and_offsets():
     s = PenaltySchedule(rho0=0.5, rho_max=4.0, doubling=10.0, scale=2.0)
     assert [s.rho(k) for k in (0, 10, 20, 25, 30, 31, 1000)] == [1.0, 2.0, 4.0, 4.0 * math.sqrt(2.0), 8.0, 8.0, 8.0]
@@ -33,13 +39,13 @@ def test_schedule_values_and_offsets():
     assert constant.rho(0) == constant.rho(500) == 1.0 and constant.offset_for(8.0) == 0.0
 
 
-def test_schedules_from_tolerances():
-    tol = wrd.Tolerances()
-    assert PenaltySchedule.single_source(tol, (1.0, 8.0), 3.0) == PenaltySchedule(0.5, 32.0, 10.0, 3.0)
-    assert PenaltySchedule.all_pairs(tol, 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
-    with wrd.tolerances.override(rho0=1.0, pairs_rho_doubling=15.0):
-        assert PenaltySchedule.single_source(wrd.tolerances, (1.0, 1.0), 1.0).rho0 == 1.0
-        assert PenaltySchedule.all_pairs(wrd.tolerances, 1.0).doubling == 15.0
+def test_schedules_from_options():
+    assert PenaltySchedule.of(wrd.SolverOptions(), 3.0, (1.0, 8.0)) == PenaltySchedule(0.5, 32.0, 10.0, 3.0)
+    assert PenaltySchedule.of(wrd.AllPairsOptions(), 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
+    assert PenaltySchedule.of(wrd.SolverOptions(rho0=1.0), 1.0).rho0 == 1.0
+    assert PenaltySchedule.of(wrd.AllPairsOptions(rho_doubling=15.0), 1.0).doubling == 15.0
+    constant = _Constant()
+    assert PenaltySchedule.of(wrd.SolverOptions(schedule=constant), 1.0) is constant
 
 
 def test_bad_schedules_are_refused():
@@ -48,7 +54,8 @@ def test_bad_schedules_are_refused():
     with pytest.raises(ValueError, match=r"expected PenaltySchedule doubling as a finite number > 0 \(or inf\), got 0"):
         PenaltySchedule(0.5, 4.0, 0, 1.0)
     mesh = wrd.Mesh(*meshes.icosphere(1, 1.0))
-    message = r"expected schedule as a PenaltySchedule or an object with rho\(k\) and offset_for\(penalty\), got float"
+    message = (r"expected schedule as None, a PenaltySchedule or an object with rho\(k\) and offset_for\(penalty\), "
+               "got float")
     with pytest.raises(ValueError, match=message):
         wrd.DistanceSolver(mesh, 0.05).solve([0], schedule=2.0)
     with pytest.raises(ValueError, match=message):
@@ -123,8 +130,7 @@ def test_swapped_schedule_changes_the_iterations_not_the_minimizer(sphere162):
     mesh, exact = sphere162
     solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
     slow = PenaltySchedule(0.5, 4.0, 20.0, solver.operators.length_scale)
-    with wrd.tolerances.override(**TIGHT):
-        default, swapped = solver.solve([5]), solver.solve([5], schedule=slow)
+    default, swapped = solver.solve([5], **_tight()), solver.solve([5], **_tight(schedule=slow))
     assert default.converged and swapped.converged and swapped.iterations != default.iterations
     assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
     assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
@@ -148,12 +154,11 @@ def test_any_object_with_rho_and_offset_for_is_a_schedule(sphere162):
     mesh, exact = sphere162
     solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
     constant = _Constant()
-    with wrd.tolerances.override(**TIGHT):
-        res = solver.solve([5], schedule=constant)
+    res = solver.solve([5], **_tight(schedule=constant))
     assert res.converged and res.penalty == 2.0 / solver.operators.length_scale
     assert _error(res.distance, exact) <= 1e-3
     again = solver.solve([5], initial=res, schedule=constant)  # the warm start asks for its absolute penalty
-    assert constant.asked == [pytest.approx(2.0, rel=1e-15)] and again.iterations == wrd.tolerances.change_window
+    assert constant.asked == [pytest.approx(2.0, rel=1e-15)] and again.iterations == solver.options.change_window
 
 
 def test_swapped_schedule_reaches_the_worker_processes(sphere162):
@@ -167,14 +172,14 @@ def test_swapped_schedule_reaches_the_worker_processes(sphere162):
     np.testing.assert_array_equal(split.distance, alone.distance)
 
 
-def test_single_source_honors_tolerances_rho0(sphere162):
+def test_single_source_honors_the_options_rho0(sphere162):
     solver = wrd.DistanceSolver(sphere162[0], 0.05, workers=1)
     default = solver.solve([5])
-    with wrd.tolerances.override(rho0=1.0):
-        assert solver.solve([5]).iterations != default.iterations
+    started = wrd.DistanceSolver(sphere162[0], 0.05, workers=1, options=wrd.SolverOptions(rho0=1.0)).solve([5])
+    assert started.iterations != default.iterations
+    assert solver.solve([5], rho0=1.0).iterations == started.iterations      # per call
     schedule = PenaltySchedule(1.0, 4.0, 10.0, solver.operators.length_scale)
-    with wrd.tolerances.override(rho0=1.0):  # the same schedule through the argument
-        assert solver.solve([5], schedule=schedule).iterations == solver.solve([5]).iterations
+    assert solver.solve([5], schedule=schedule).iterations == started.iterations  # the same schedule as an object
 
 
 @pytest.fixture(scope="module")
@@ -191,16 +196,12 @@ def test_all_pairs_swapped_schedule_and_rho0(bumpy42):
     assert default.converged and swapped.converged and swapped.iterations != default.iterations
     assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
     assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
-    with wrd.tolerances.override(rho0=1.0):
-        started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
+    started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, rho0=1.0)   # per call
     assert started.iterations != default.iterations
-    with pytest.warns(DeprecationWarning, match=r"tolerances\.pairs_rho0 is tolerances\.rho0, shared by both solvers"):
-        with wrd.tolerances.override(pairs_rho0=1.0):
-            renamed = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
-            assert wrd.tolerances.rho0 == 1.0
-    assert renamed.iterations == started.iterations and wrd.tolerances.rho0 == 0.5
-    with pytest.warns(DeprecationWarning, match=r"tolerances\.pairs_cg_fraction is tolerances\.cg_fraction"):
-        assert wrd.tolerances.pairs_cg_fraction == wrd.tolerances.cg_fraction
+    # in the solver's options rho0 also moves the multigrid's target penalty: other iterates, the same minimizer
+    again = wrd.AllPairsSolver(mesh, 0.1, device="cpu", workers=1,
+                               options=wrd.AllPairsOptions(rho0=1.0, eps_change=3e-4)).solve()
+    assert again.converged and _error(again.distance, exact) <= 1e-3
 
 
 def test_device_change_test_matches_the_host_rule():
@@ -208,7 +209,7 @@ def test_device_change_test_matches_the_host_rule():
     ChangeTest is its host statement (without the error estimate's test, eps_estimate = inf). Four lanes:
     fast and slow decay, a jump, zeros."""
     import warp as wp
-    from warp_regdist.kernels.single_source import LANE_ROWS, SETTLED, single_source_kernels
+    from warp_regdist.kernels.single_source import LANE_ROWS, RULE_FIELDS, SETTLED, rule_struct, single_source_kernels
     from warp_regdist.kernels.lanes import row_dim
 
     kern = single_source_kernels(wp.float64, 4, 3)
@@ -231,8 +232,8 @@ def test_device_change_test_matches_the_host_rule():
         step.assign(np.array([j * window, 0], dtype=np.int32))
         wp.launch(kern.change_measure, row_dim(n, (16, 1), 1), device="cpu",
                   inputs=[u, snapshot, moved, step, window, wp.float64(0.95), lane, 16, 1, n])
-        wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]  # eps_estimate inf
-                  + [wp.float64(x) for x in (0.0, 1.0, 1.0, eps, np.inf, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0)] + [atol2])
+        rule = rule_struct(wp.float64, dict(zip(RULE_FIELDS, (0.0, 1.0, 1.0, eps, np.inf, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0))))
+        wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window, rule, atol2])
         device_settled = lane.numpy()[SETTLED, 0] == 1.0
         np.testing.assert_array_equal(device_settled, host.update(values))
         seen.append(device_settled.copy())
@@ -240,19 +241,15 @@ def test_device_change_test_matches_the_host_rule():
     assert seen[-1].tolist() == [True, False, True, True] and not seen[3, 2] and seen[2, 2]
 
 
-def test_captured_graph_launches_and_sparse_checks_give_the_same_solve(sphere162, monkeypatch):
+def test_captured_graph_launches_and_sparse_checks_give_the_same_solve(sphere162):
     """The captured iteration, the same launches one by one, and host reads every 7 iterations
     (the device freezes each column at its own iteration): the same columns, bit for bit."""
-    from warp_regdist.solvers import single_source_batch
-    from warp_regdist.solvers import solver as solver_module
 
     solver = wrd.DistanceSolver(sphere162[0], 0.05, workers=1)
     sets = [[j * 17] for j in range(6)] + [[3, 90]]
     graph = solver.solve_many(sets, keep_duals=True)
-    monkeypatch.setattr(single_source_batch, "CAPTURE", False)
-    launches = solver.solve_many(sets, keep_duals=True)
-    monkeypatch.setattr(solver_module, "_CHECK_EVERY", {False: 7, True: 7})
-    sparse = solver.solve_many(sets, keep_duals=True)
+    launches = solver.solve_many(sets, keep_duals=True, capture=False)
+    sparse = solver.solve_many(sets, keep_duals=True, capture=False, check_every=7)
     for other in (launches, sparse):
         for key in ("distance", "duals", "iterations", "primal_residual", "dual_residual", "penalty"):
             np.testing.assert_array_equal(other[key], graph[key])

@@ -18,6 +18,7 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 import warp_regdist.solvers.all_pairs_state as all_pairs_state
+import warp_regdist.solvers.memory as memory
 from warp_regdist.cli import main
 from warp_regdist.metrics import triangle_inequality_violations
 
@@ -53,19 +54,19 @@ def test_defaults_within_one_percent_symmetric_by_construction(bumpy42, dtype, d
 
 
 def test_result_breaking_the_gradient_bound_is_not_converged(bumpy42, tmp_path):
-    """A result whose residual tests held but whose |grad U| exceeds tolerances.max_gradient is reported as not
+    """A result whose residual tests held but whose |grad U| exceeds max_gradient is reported as not
     converged, with the largest |grad U| in the warning; a converged checkpoint resumed is checked the same way."""
     mesh, _ = bumpy42
     ops = wrd.build_operators(mesh)
     res = wrd.all_pairs(mesh, 0.1, checkpoint=tmp_path / "run.npz")
+    res_limit = wrd.AllPairsOptions().max_gradient
     steepest = np.linalg.norm((ops.grad @ res.distance).reshape(mesh.n_elements, 3, -1), axis=1).max()
-    assert res.converged and 1.0 < steepest <= wrd.tolerances.max_gradient   # ADMM iterates meet |G U| <= 1 to about 1%
-    with wrd.tolerances.override(max_gradient=1.0):
-        with pytest.warns(wrd.ConvergenceWarning, match=rf"max \|grad U\| {steepest:.3g}, above tolerances\.max_gradient = 1\)"):
-            flagged = wrd.all_pairs(mesh, 0.1)
-        assert not flagged.converged and np.array_equal(flagged.distance, res.distance)
-        with pytest.warns(wrd.ConvergenceWarning, match="although its residual tests held: not converged"):
-            assert not wrd.all_pairs(mesh, 0.1, resume=tmp_path / "run.npz").converged
+    assert res.converged and 1.0 < steepest <= res_limit   # ADMM iterates meet |G U| <= 1 to about 1%
+    with pytest.warns(wrd.ConvergenceWarning, match=rf"max \|grad U\| {steepest:.3g}, above max_gradient = 1\)"):
+        flagged = wrd.all_pairs(mesh, 0.1, max_gradient=1.0)
+    assert not flagged.converged and np.array_equal(flagged.distance, res.distance)
+    with pytest.warns(wrd.ConvergenceWarning, match="although its residual tests held: not converged"):
+        assert not wrd.all_pairs(mesh, 0.1, resume=tmp_path / "run.npz", max_gradient=1.0).converged
 
 
 def test_large_alpha_without_active_constraints_converges(bumpy42, device):
@@ -95,7 +96,7 @@ def test_worker_processes_give_the_same_matrix():
 
 def _full_admm(V, F, alpha_hat, iterations):
     """docs/method.md section 5 verbatim on dense arrays (X, R, U, Z, Q, Y, S, H, K), exact linear solves."""
-    tol = wrd.tolerances
+    tol = wrd.AllPairsOptions()
     a_f, _ = rs.face_geometry(V, F)
     G = rs.gradient_matrices(V, F)
     A_V = rs.vertex_areas(V, F)
@@ -126,7 +127,7 @@ def _full_admm(V, F, alpha_hat, iterations):
     Z, Q, Y, S = (np.zeros((3, len(F), n)) for _ in range(4))
     a = tol.relaxation
     for k in range(iterations):
-        rho = L * min(tol.pairs_rho_max, tol.rho0 * 2.0 ** (k / tol.pairs_rho_doubling))
+        rho = L * min(tol.rho_max, tol.rho0 * 2.0 ** (k / tol.rho_doubling))
         rho2 = 25.0 * rho * rho / (L * A)
         K2 = (alpha + rho) * Wd + rho2 * M
         b = 0.5 * A_V[:, None] * np.ones(n)
@@ -209,10 +210,10 @@ def test_distance_matrix_rows_and_symmetrization(bumpy42):
 
 def test_refuses_what_does_not_fit(bumpy42, monkeypatch):
     mesh, _ = bumpy42
-    monkeypatch.setattr(all_pairs_state, "available_memory", lambda device: 1000)
+    monkeypatch.setattr(memory, "available_memory", lambda device: 1000)
     with pytest.raises(ValueError, match=r"needs .* GB, got 0\.00 GB available"):
         wrd.all_pairs(mesh, 0.03, device="cpu")
-    device_bytes, host_bytes = all_pairs_state.memory_estimate(10_000, 20_000, "float32")
+    device_bytes, host_bytes = memory.memory_estimate(10_000, 20_000, "float32")
     assert device_bytes + host_bytes < 12e9  # a 10k-vertex surface fits in float32
 
 

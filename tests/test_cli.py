@@ -103,9 +103,8 @@ def test_distance_polish_is_within_the_exact_minimizer(tmp_path, capsys):
 
 
 def test_polish_of_an_unconverged_solve_is_skipped_with_a_warning(meshes, tmp_path, capsys):
-    with wrd.tolerances.override(max_iterations=2):
-        code, out, err = run(capsys, "distance", meshes / "sphere.off", "--sources", "0", "--polish",
-                             "--output", tmp_path / "u.npy")
+    code, out, err = run(capsys, "distance", meshes / "sphere.off", "--sources", "0", "--polish",
+                         "--max-iterations", "2", "--output", tmp_path / "u.npy")
     assert code == 1 and "NOT converged" in out and "estimated error" in out
     lines = err.strip().splitlines()
     assert len(lines) == 2 and lines[1] == ("warp-regdist: warning: --polish skipped: the ADMM did not converge, "
@@ -136,8 +135,8 @@ def test_distance_from_boundary(meshes, tmp_path, capsys):
 
 def test_not_converged_is_a_warning(meshes, tmp_path, capsys):
     npy = tmp_path / "u.npy"
-    with wrd.tolerances.override(max_iterations=2):
-        code, out, err = run(capsys, "distance", meshes / "sphere.off", "--sources", "0", "--output", npy)
+    code, out, err = run(capsys, "distance", meshes / "sphere.off", "--sources", "0", "--max-iterations", "2",
+                         "--output", npy)
     assert code == 1
     assert npy.exists()
     assert "NOT converged" in out

@@ -15,12 +15,12 @@ Why a wrong implementation fails:
 """
 
 import numpy as np
-import pytest
 
 import closed_forms
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
+from conftest import TIGHT
 
 
 def _alpha_hat(V, F, alpha):
@@ -31,14 +31,13 @@ def _alpha_hat(V, F, alpha):
 def _cylinder_error(n_theta, alpha, device):
     n_h = 3
     V, F = meshes.cylinder(n_theta, n_h, 1.0)
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=_alpha_hat(V, F, alpha), device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=_alpha_hat(V, F, alpha), device=device, options=TIGHT)
     res = solver.solve(meshes.cylinder_generator_line(n_theta, n_h).tolist())
     assert res.converged
     exact = closed_forms.circle_distance(np.arctan2(V[:, 1], V[:, 0]), alpha)
     return np.abs(res.distance - exact).max() / exact.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_cylinder_matches_circle_closed_form(device):
     alpha = 0.75
     # the exact discrete minimizers are 3.0e-3 and 6.1e-4 (of the maximum) from the
@@ -56,14 +55,13 @@ def _disk_error(n_rings, radius, alpha, device):
     boundary = wrd.boundary_vertices(mesh)
     r = np.linalg.norm(V, axis=1)
     assert np.array_equal(boundary, np.flatnonzero(np.abs(r - radius) < 1e-12))
-    solver = wrd.DistanceSolver(mesh, alpha_hat=_alpha_hat(V, F, alpha), device=device)
+    solver = wrd.DistanceSolver(mesh, alpha_hat=_alpha_hat(V, F, alpha), device=device, options=TIGHT)
     res = solver.solve(boundary)
     assert res.converged
     exact = closed_forms.disk_distance(r, radius, alpha)
     return np.abs(res.distance - exact).max() / exact.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_disk_matches_closed_form(device):
     radius, alpha = 1.0, 0.3
     # exact discrete minimizers: 1.18% (6 rings) and 0.77% (12 rings) of the maximum,
@@ -75,14 +73,13 @@ def test_disk_matches_closed_form(device):
     assert fine < 0.85 * coarse, (coarse, fine)
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_unregularized_icosphere_matches_great_circle_distance(device):
     # alpha_hat = 0: the discrete geodesic distance. Its exact discrete minimizer is 1.87%
     # (of the maximum, pi) below the great-circle distance on this mesh, never above it:
     # the inscribed polyhedron's paths are shorter than the sphere's.
     V, F = meshes.icosphere(4, 1.0)
     source = 0
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.0, device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.0, device=device, options=TIGHT)
     res = solver.solve([source])
     exact = np.arccos(np.clip(V @ V[source], -1.0, 1.0))
     err = np.abs(res.distance - exact).max() / exact.max()

@@ -17,6 +17,7 @@ import meshes
 import reference_solver as rs
 from same_run import on_cuda
 import warp_regdist as wrd
+from conftest import TIGHT
 from warp_regdist.geometry.operators import build_operators
 
 
@@ -35,20 +36,18 @@ def _check_against_reference(V, F, sources, alpha_hat, device):
     areas, _ = rs.face_geometry(V, F)
     alpha = alpha_hat * np.sqrt(areas.sum())
     expected = rs.solve_reference(V, F, sources, alpha)
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=alpha_hat, device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=alpha_hat, device=device, options=TIGHT)
     res = solver.solve(sources)
     assert res.converged
     err = np.abs(res.distance - expected).max() / expected.max()
     assert err <= 1e-3, err
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_single_source_matches_conic_solver(device):
     V, F = _bumpy_sphere()
     _check_against_reference(V, F, [100], 0.05, device)
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_several_sources_matches_conic_solver(device):
     V, F = _bumpy_sheet()
     _check_against_reference(V, F, [0, 17, 170, 310], 0.05, device)
@@ -70,7 +69,7 @@ def test_no_active_gradient_constraint_converges_at_defaults(device, alpha_hat):
 
 def test_alpha_one_converges_at_defaults(device):
     # the warm-started u-step met its fixed CG tolerance without moving, and r stalled at
-    # 1.4x its tolerance for 10,000 iterations (cured by tolerances.cg_primal_fraction)
+    # 1.4x its tolerance for 10,000 iterations (cured by the option cg_primal_fraction)
     V, F = meshes.square_grid(12)
     res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=1.0, device=device).solve([0])
     assert res.converged and res.iterations < 200, res.iterations

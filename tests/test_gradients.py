@@ -54,7 +54,7 @@ def smoothed_value(mesh, alpha_hat, sources, b, start):
     solver = wrd.DistanceSolver(mesh, alpha_hat, workers=1)
     free = np.ones(mesh.n_vertices, dtype=bool)
     free[sources] = False
-    problem = SmoothedProblem(solver.operators, solver.alpha, wrd.tolerances.gradient_smoothing, free)
+    problem = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing, free)
     return b[free] @ problem.minimize(start[free])[0]
 
 
@@ -191,8 +191,7 @@ def test_vjp_refusals():
         res.vjp([[1.0], [1.0, 2.0]])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        with wrd.tolerances.override(max_iterations=5):
-            short = solver.solve([0])
+        short = solver.solve([0], max_iterations=5)
     with pytest.raises(ValueError, match="expected a converged solve to differentiate, got 1 of 1 columns not converged"):
         short.vjp(np.ones(n))
     with pytest.raises(ValueError, match="expected a converged solve to polish, got 1 of 1 columns not converged"):
@@ -204,9 +203,8 @@ def test_vjp_refusals():
     with pytest.raises(ValueError, match="expected the Dirichlet regularizer on a mesh to differentiate, got 'hessian'"):
         hessian.vjp(np.ones(n))
     for bad in (0.0, -1e-6, float("inf"), float("nan")):
-        with wrd.tolerances.override(gradient_smoothing=bad):
-            with pytest.raises(ValueError, match="expected tolerances.gradient_smoothing as a finite number > 0, got"):
-                res.vjp(np.ones(n))
+        with pytest.raises(ValueError, match="expected gradient_smoothing as a number > 0, got"):
+            wrd.SolverOptions(gradient_smoothing=bad)
 
 
 def test_unreachable_component_moves_the_distance_only_through_the_total_area():
@@ -248,7 +246,6 @@ def test_a_stalled_final_level_falls_back_to_the_last_converged_one(monkeypatch)
     with pytest.warns(wrd.ConvergenceWarning, match="solved at gradient_smoothing 1e-05, not 1e-06"):
         fallback = res.vjp(b)
     monkeypatch.undo()
-    with wrd.tolerances.override(gradient_smoothing=1e-5):
-        direct = res.vjp(b)
+    direct = wrd.DistanceSolver(mesh, 0.05, workers=1).solve([0], gradient_smoothing=1e-5).vjp(b)
     assert fallback.smoothing == pytest.approx(1e-5) and direct.smoothing == pytest.approx(1e-5)
     np.testing.assert_allclose(fallback.vertices, direct.vertices, rtol=1e-6, atol=1e-8 * np.abs(direct.vertices).max())

@@ -1,10 +1,8 @@
 """The package's layout stays easy to see: no import circles between its modules, no module
-over 600 lines, and the module paths of earlier releases still import (with a warning)."""
+over 600 lines."""
 
 import ast
 import os
-import subprocess
-import sys
 
 import warp_regdist
 
@@ -63,20 +61,3 @@ def test_no_module_over_600_lines():
     """A few hundred lines is the norm; past 600 a module likely holds more than one concept."""
     long = {name: n for name, path in _modules().items() if (n := sum(1 for _ in open(path))) > 600}
     assert long == {}
-
-
-def test_earlier_module_paths_import_with_a_warning():
-    code = ("import warnings, warp_regdist\n"
-            "with warnings.catch_warnings(record=True) as caught:\n"
-            "    warnings.simplefilter('always')\n"
-            "    import warp_regdist.render as old\n"
-            "    from warp_regdist.volume_grid import sample_on_grid\n"
-            "import warp_regdist.output.render as new\n"
-            "print(old is new, sample_on_grid.__module__, callable(warp_regdist.tetrahedralize))\n"
-            "print([str(w.message) for w in caught if w.category is DeprecationWarning])\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
-    first, second = done.stdout.strip().splitlines()[-2:]
-    assert first == "True warp_regdist.geometry.volume_grid True"
-    assert "warp_regdist.render is warp_regdist.output.render; the old path will be removed" in second
-    assert "warp_regdist.volume_grid is warp_regdist.geometry.volume_grid" in second

@@ -45,9 +45,9 @@ def test_only_the_calling_thread_launches_kernels(sphere642, monkeypatch):
     monkeypatch.setattr(warp_context, "invoke", recording_invoke)
     _quiet_all_pairs(sphere642, 0.03, dtype="float32", max_iterations=3, workers=2, device="cpu")
     solver = wrd.DistanceSolver(sphere642, 0.05, dtype="float32", device="cpu", workers=2)
-    with wrd.tolerances.override(max_iterations=3), warnings.catch_warnings():
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        solver.solve_many([[i] for i in range(32)])  # two lane blocks: one per process
+        solver.solve_many([[i] for i in range(32)], max_iterations=3)  # two lane blocks: one per process
     solver.close()
     assert threads == {threading.get_ident()}
 
@@ -152,7 +152,7 @@ def test_solve_many_interrupt_returns_current_iterates(monkeypatch):
     sets = [[i] for i in range(16)]
     run_iterations = solver_module.run_iterations
 
-    def ctrl_c_after_five(problem, start, max_iterations, check_every=1):
+    def ctrl_c_after_five(problem, start, max_iterations, check_every=1, poll=None):
         advance = problem.advance
 
         def advance_then_ctrl_c(it, count):
@@ -161,16 +161,15 @@ def test_solve_many_interrupt_returns_current_iterates(monkeypatch):
                 os.kill(os.getpid(), signal.SIGINT)
 
         problem.advance = advance_then_ctrl_c
-        return run_iterations(problem, start, max_iterations, check_every)
+        return run_iterations(problem, start, max_iterations, check_every, poll)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
         monkeypatch.setattr(solver_module, "run_iterations", ctrl_c_after_five)
-        with wrd.tolerances.override(eps_rel=1e-9, eps_rel_dual=1e-9):  # would run to max_iterations
-            res = solver.solve_many(sets)
+        res = solver.solve_many(sets, eps_rel=1e-9, eps_rel_dual=1e-9)  # would run to max_iterations
     solver.close()
     assert res.interrupted and not res.converged.any()
-    assert np.all(res.iterations < wrd.tolerances.max_iterations)
+    assert np.all(res.iterations < solver.options.max_iterations)
     assert np.all(np.isfinite(res.distance)) and res.distance.max() > 0
 
 
@@ -195,7 +194,7 @@ def test_a_checkpoint_is_checked_from_its_headers_and_read_one_array_at_a_time(s
 
     path = tmp_path / "run.npz"
     _quiet_all_pairs(sphere642, 0.03, max_iterations=3, device="cpu", checkpoint=path)
-    fingerprint = all_pairs_checkpoint.problem_fingerprint(sphere642, 0.03, "float64", wrd.tolerances.pairs_rho2_factor)
+    fingerprint = all_pairs_checkpoint.problem_fingerprint(sphere642, 0.03, "float64", wrd.AllPairsOptions().rho2_factor)
     tracemalloc.start()
     try:
         with all_pairs_checkpoint.read_checkpoint(path, fingerprint, sphere642.n_elements) as saved:

@@ -17,6 +17,7 @@ from scipy.optimize import OptimizeWarning
 import meshes
 from same_run import assert_same_run
 import warp_regdist as wrd
+from conftest import TIGHT
 
 
 def _bumpy_sphere():
@@ -39,20 +40,18 @@ def test_scaling_the_mesh_scales_the_distance(device):
     assert err <= 1e-3, (err, d1.iterations, d10.iterations)
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_float32_agrees_with_float64(device):
     # tight tolerances, so that both stop near the same minimizer (at eps_rel = 1e-3 they
     # stop ~1e-3 apart for reasons unrelated to precision); float32 reaches them here
     V, F = _bumpy_sphere()
     mesh = wrd.Mesh(V, F)
-    d64 = wrd.DistanceSolver(mesh, alpha_hat=0.05, device=device, dtype="float64").solve([7, 90])
-    d32 = wrd.DistanceSolver(mesh, alpha_hat=0.05, device=device, dtype="float32").solve([7, 90])
+    d64 = wrd.DistanceSolver(mesh, alpha_hat=0.05, device=device, dtype="float64", options=TIGHT).solve([7, 90])
+    d32 = wrd.DistanceSolver(mesh, alpha_hat=0.05, device=device, dtype="float32", options=TIGHT).solve([7, 90])
     assert d64.converged and d32.converged
     assert d32.distance.dtype == np.float64 and d32.distance.shape == (len(V),)
     assert _rel(d32.distance, d64.distance) <= 1e-3
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_solve_many_equals_separate_solves(device):
     # tight tolerances: a batch may run a column past its own stopping point (until the
     # slowest column stops), so at loose tolerances the two legitimately differ by the
@@ -61,7 +60,7 @@ def test_solve_many_equals_separate_solves(device):
     belt = np.flatnonzero(np.abs(V[:, 2]) < 0.15)  # a band of vertices around the equator
     assert len(belt) > 10
     sets = [[5], [11, 150], belt]
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device, options=TIGHT)
     many = solver.solve_many(sets)
     single = [solver.solve(s) for s in sets]
     assert many.distance.shape == (len(V), 3)
@@ -94,9 +93,9 @@ def test_distance_zero_on_sources_nonnegative_and_inf_where_unreachable(device):
     assert np.all(d[disk] == np.inf)
 
 
-def test_sources_on_two_components(device, tight_tolerances):
+def test_sources_on_two_components(device):
     V, F, sphere, lonely, disk = _sphere_gap_disk()
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device, options=TIGHT)
     d = solver.solve_many([[0], [0, int(disk[0])], [int(disk[0])]]).distance
     assert np.all(np.isfinite(d[sphere, 0])) and np.all(d[disk, 0] == np.inf)
     assert np.all(np.isfinite(d[sphere, 1])) and np.all(np.isfinite(d[disk, 1]))
@@ -112,9 +111,8 @@ def test_sources_on_two_components(device, tight_tolerances):
 def test_not_converged_warns(device):
     V, F = _bumpy_sphere()
     solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
-    with wrd.tolerances.override(max_iterations=2):
-        with pytest.warns(wrd.ConvergenceWarning):
-            res = solver.solve([0])
+    with pytest.warns(wrd.ConvergenceWarning):
+        res = solver.solve([0], max_iterations=2)
     assert not res.converged
     assert res.iterations == 2
     assert issubclass(wrd.ConvergenceWarning, OptimizeWarning)
@@ -158,8 +156,7 @@ def test_tightened_tolerances_converge(device):
     # iterations (a warm start already meeting the tolerance left u unchanged)
     data = np.load(os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz"))
     solver = wrd.DistanceSolver(wrd.Mesh(data["vertices"], data["faces"]), alpha_hat=0.05, device=device)
-    with wrd.tolerances.override(eps_rel=2.5e-5, eps_rel_dual=0.015, max_iterations=2000):
-        res = solver.solve_many([[1], [4], [7]])
+    res = solver.solve_many([[1], [4], [7]], eps_rel=2.5e-5, eps_rel_dual=0.015, max_iterations=2000)
     assert res.converged.all(), res.iterations
     assert res.iterations.max() < 600, res.iterations
 
@@ -188,13 +185,11 @@ def test_bad_workers(workers):
 
 
 def test_convergence_warnings_point_at_the_caller(device):
-    from warp_regdist.tolerances import tolerances
-
     V, F = meshes.icosphere(1)
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device)
-    with tolerances.override(max_iterations=10):
-        with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 1 of 1 source sets$") as one:
-            solver.solve([0])
-        with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 2 of 2 source sets$") as many:
-            solver.solve_many([[0], [5]])
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, device=device,
+                                options=wrd.SolverOptions(max_iterations=10))
+    with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 1 of 1 source sets$") as one:
+        solver.solve([0])
+    with pytest.warns(wrd.ConvergenceWarning, match=r"^ADMM did not converge in 10 iterations for 2 of 2 source sets$") as many:
+        solver.solve_many([[0], [5]])
     assert [w.filename for w in one] == [__file__] and [w.filename for w in many] == [__file__]

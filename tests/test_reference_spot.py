@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import warp_regdist as wrd
+from conftest import TIGHT
 
 DATA = pathlib.Path(__file__).parent / "data"
 SOURCE = 2272
@@ -39,9 +40,8 @@ def _error(distance, name):
     return np.abs(distance - expected).max() / expected.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_spot_matches_exact_minimizer(spot, device):
-    res = wrd.DistanceSolver(spot, alpha_hat=ALPHA_HAT, device=device).solve([SOURCE])
+    res = wrd.DistanceSolver(spot, alpha_hat=ALPHA_HAT, device=device, options=TIGHT).solve([SOURCE])
     assert res.converged
     assert res.distance[SOURCE] == 0.0
     err = _error(res.distance, "exact")

@@ -19,6 +19,7 @@ import meshes
 import reference_solver as rs
 from same_run import assert_same_run
 import warp_regdist as wrd
+from conftest import TIGHT
 
 
 def _sheet():
@@ -38,7 +39,6 @@ def _relative_error(u, expected):
     return np.abs(u - expected).max() / expected.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_vector_field_matches_conic_solver(device):
     V, F = _sheet()
     field = _tangent_field(V, F, [1.0, 1.0, 0.0])
@@ -51,12 +51,11 @@ def test_vector_field_matches_conic_solver(device):
     sources = [0, 170]
     expected = rs.solve_reference(V, F, sources, 0.05 * np.sqrt(areas.sum()), W=W)
     res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, regularizer="vector_field", beta_hat=beta,
-                             vector_field=field, device=device).solve(sources)
+                             vector_field=field, device=device, options=TIGHT).solve(sources)
     assert res.converged
     assert _relative_error(res.distance, expected) <= 1e-3
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 @pytest.mark.parametrize("surface", ["square_with_hole", "sphere"])
 def test_hessian_matches_conic_solver(device, surface):
     # Flat and round meshes: there libigl's curved Hessian energy is positive semi-definite
@@ -70,7 +69,7 @@ def test_hessian_matches_conic_solver(device, surface):
         sources = [0]
     areas, _ = rs.face_geometry(V, F)
     expected = rs.solve_reference(V, F, sources, 0.05 * areas.sum() ** 1.5, W=igl.curved_hessian_energy(V, F))
-    res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, regularizer="hessian", device=device).solve(sources)
+    res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.05, regularizer="hessian", device=device, options=TIGHT).solve(sources)
     assert res.converged
     assert _relative_error(res.distance, expected) <= 1e-3
 

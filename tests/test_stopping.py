@@ -35,7 +35,7 @@ def _error(u, exact):
 def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
     mesh, refs = cat80
     res = wrd.all_pairs(mesh, alpha_hat, device=device)
-    assert res.converged and res.change <= wrd.tolerances.pairs_eps_change
+    assert res.converged and res.change <= wrd.AllPairsOptions().eps_change
     assert _error(res.distance, refs[alpha_hat]) <= 5e-3
 
 
@@ -49,18 +49,17 @@ def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
 
 
 def test_accuracy_sets_every_tolerance():
-    from warp_regdist.solvers.all_pairs_admm import accuracy_tolerances
-
-    tol = wrd.tolerances
-    assert accuracy_tolerances(None) == dict(eps_rel=tol.pairs_eps_rel, eps_rel_consensus=tol.pairs_eps_rel_consensus,
-                                             eps_rel_dual=tol.pairs_eps_rel_dual, eps_change=tol.pairs_eps_change,
-                                             eps_excess=tol.pairs_eps_excess, cg_fraction=tol.cg_fraction)
-    fine, coarse = accuracy_tolerances(0.001), accuracy_tolerances(0.02)
-    assert fine["eps_change"] == pytest.approx(3e-4) and coarse["eps_change"] == pytest.approx(6e-3)
-    assert fine["eps_excess"] == pytest.approx(1e-3) and coarse["eps_excess"] == pytest.approx(2e-2)
-    assert fine["eps_rel_consensus"] == pytest.approx(tol.pairs_eps_rel_consensus / 5)
-    assert coarse["eps_rel_dual"] == pytest.approx(4 * tol.pairs_eps_rel_dual)
-    assert fine["cg_fraction"] == pytest.approx(tol.cg_fraction / 5) and coarse["cg_fraction"] == tol.cg_fraction
+    default, same = wrd.AllPairsOptions(), wrd.AllPairsOptions.for_accuracy(0.005)   # the defaults' accuracy
+    assert (same.eps_rel, same.eps_rel_consensus, same.eps_rel_dual, same.eps_excess, same.cg_fraction) == (
+        default.eps_rel, default.eps_rel_consensus, default.eps_rel_dual, default.eps_excess, default.cg_fraction)
+    fine, coarse = wrd.AllPairsOptions.for_accuracy(0.001), wrd.AllPairsOptions.for_accuracy(0.02, max_iterations=9)
+    assert fine.eps_change == pytest.approx(3e-4) and coarse.eps_change == pytest.approx(6e-3)
+    assert fine.eps_excess == pytest.approx(1e-3) and coarse.eps_excess == pytest.approx(2e-2)
+    assert fine.eps_rel_consensus == pytest.approx(default.eps_rel_consensus / 5)
+    assert coarse.eps_rel_dual == pytest.approx(4 * default.eps_rel_dual) and coarse.max_iterations == 9
+    assert fine.cg_fraction == pytest.approx(default.cg_fraction / 5) and coarse.cg_fraction == default.cg_fraction
+    with pytest.raises(ValueError, match=r"expected accuracy as a fraction of the max distance in \(0, 0\.1\], got 0\.5"):
+        wrd.AllPairsOptions.for_accuracy(0.5)
 
 
 def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
@@ -126,13 +125,15 @@ def test_unconverged_all_pairs_names_its_obtuse_steepest_triangle(cat80):
                      "(docs/guides/all-pairs.md)"]
 
 
-def test_all_pairs_reads_its_settings_from_tolerances(cat80):
+def test_all_pairs_reads_its_settings_from_its_options(cat80):
     mesh, _ = cat80
-    with wrd.tolerances.override(pairs_eps_change=0.0):
-        with pytest.raises(ValueError, match=r"expected a finite eps_change > 0, got 0\.0"):
-            wrd.all_pairs(mesh, 0.1)
-        with pytest.warns(wrd.ConvergenceWarning):  # the argument overrides the setting
-            res = wrd.all_pairs(mesh, 0.1, device="cpu", max_iterations=3, eps_change=1.0)
+    with pytest.raises(ValueError, match=r"expected eps_change as a number > 0 \(or inf\), got 0\.0"):
+        wrd.AllPairsOptions(eps_change=0.0)
+    with pytest.raises(ValueError, match=r"expected AllPairsOptions fields among \[.*\], got \['pairs_eps_change'\]"):
+        wrd.all_pairs(mesh, 0.1, pairs_eps_change=1.0)
+    solver = wrd.AllPairsSolver(mesh, 0.1, device="cpu", options=wrd.AllPairsOptions(max_iterations=3))
+    with pytest.warns(wrd.ConvergenceWarning):  # the argument overrides the option
+        res = solver.solve(eps_change=1.0)
     assert res.iterations == 3 and res.change == np.inf
 
 
@@ -166,7 +167,8 @@ def test_device_error_estimate_is_the_vertex_extrapolation():
     import warp as wp
 
     from warp_regdist.kernels.lanes import row_dim
-    from warp_regdist.kernels.single_source import ESTIMATE, LANE_ROWS, SETTLED, single_source_kernels
+    from warp_regdist.kernels.single_source import (ESTIMATE, LANE_ROWS, RULE_FIELDS, SETTLED, rule_struct,
+                                                    single_source_kernels)
     from warp_regdist.solvers import stopping
 
     kern = single_source_kernels(wp.float64, 4, 3)
@@ -190,9 +192,9 @@ def test_device_error_estimate_is_the_vertex_extrapolation():
     rho = wp.array(np.ones((1, 4)), dtype=kern.V, device="cpu")
     table, atol2 = wp.full(4, 1.0, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=kern.V, device="cpu")
     eps_change, eps_estimate = 1e-3, 5e-3
-    wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, 10]
-              + [wp.float64(x) for x in (1e-6, 1e-3, 0.5, eps_change, eps_estimate, 1e-3, 0.01, 0.3, 0.3, 1.0, 1.0)]
-              + [atol2])
+    rule = rule_struct(wp.float64, dict(zip(RULE_FIELDS, (1e-6, 1e-3, 0.5, eps_change, eps_estimate, 1e-3, 0.01, 0.3,
+                                                         0.3, 1.0, 1.0))))
+    wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, 10, rule, atol2])
     out = lane.numpy().reshape(LANE_ROWS, 4)
     estimate, d = stopping.vertex_extrapolation(u, snapshot, moved_last)
     np.testing.assert_allclose(out[ESTIMATE], estimate, rtol=1e-14)
@@ -215,7 +217,7 @@ def test_device_test_is_the_stopping_module_on_the_same_inputs():
 
     from warp_regdist.solvers import stopping
     from warp_regdist.kernels.single_source import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
-                                           single_source_kernels)
+                                                    RULE_FIELDS, rule_struct, single_source_kernels)
     from warp_regdist.kernels.element_core import DY2, G2, R2, Z2
 
     kern = single_source_kernels(wp.float64, 4, 3)
@@ -232,9 +234,9 @@ def test_device_test_is_the_stopping_module_on_the_same_inputs():
     rho = wp.array(rho_old.reshape(1, 4), dtype=kern.V, device="cpu")
     step = wp.array(np.array([3, 0], dtype=np.int32), dtype=wp.int32, device="cpu")
     table, atol2 = wp.full(4, rho_new, dtype=wp.float64, device="cpu"), wp.zeros(1, dtype=kern.V, device="cpu")
-    wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window]
-              + [wp.float64(x) for x in (eps_pri_abs, eps_rel, eps_rel_dual, 1e-3, 5e-3, cg_fraction, cg_primal, alpha,
-                                         shift, scale, 1.0)] + [atol2])
+    rule = rule_struct(wp.float64, dict(zip(RULE_FIELDS, (eps_pri_abs, eps_rel, eps_rel_dual, 1e-3, 5e-3, cg_fraction,
+                                                         cg_primal, alpha, shift, scale, 1.0))))
+    wp.launch(kern.admm_check, 1, device="cpu", inputs=[acc, lane, rho, step, table, window, rule, atol2])
     out = lane.numpy().reshape(LANE_ROWS, 4)
     r = np.sqrt(sums[R2])
     eps_pri = stopping.tolerance(eps_pri_abs, eps_rel, np.sqrt(np.maximum(sums[G2], sums[Z2])))

@@ -14,7 +14,7 @@ import reference_solver as rs
 import warp_regdist as wrd
 from warp_regdist.geometry.surface_points import refine
 
-TIGHT = dict(conftest.TIGHT, eps_change=1e-6)
+TIGHT = conftest.TIGHT.replace(eps_change=1e-6)
 
 
 def _sphere(subdivisions):
@@ -111,14 +111,13 @@ def test_point_in_a_face_converges_to_the_euclidean_distance():
     """Flat disc, alpha_hat 0: u is the PL distance from the point, within O(h) of |x - p|."""
     p = np.array([0.123, 0.071, 0.0])
     errors = []
-    with wrd.tolerances.override(**TIGHT):
-        for rings in (6, 12, 24):
-            mesh = _disk(rings)
-            (face, b), = wrd.surface_points(mesh, p)
-            res = wrd.DistanceSolver(mesh, alpha_hat=0.0).solve(points=[(face, b)])
-            zero = np.flatnonzero(res.refined_distance == 0.0)
-            assert zero.size == 1 and np.allclose(res.refined_mesh.vertices[zero[0]], p, atol=1e-15)
-            errors.append(np.abs(res.distance - np.linalg.norm(mesh.vertices - p, axis=1)).max() / _mean_edge(mesh))
+    for rings in (6, 12, 24):
+        mesh = _disk(rings)
+        (face, b), = wrd.surface_points(mesh, p)
+        res = wrd.DistanceSolver(mesh, alpha_hat=0.0, options=TIGHT).solve(points=[(face, b)])
+        zero = np.flatnonzero(res.refined_distance == 0.0)
+        assert zero.size == 1 and np.allclose(res.refined_mesh.vertices[zero[0]], p, atol=1e-15)
+        errors.append(np.abs(res.distance - np.linalg.norm(mesh.vertices - p, axis=1)).max() / _mean_edge(mesh))
     errors = np.array(errors) * np.array([1 / 6, 1 / 12, 1 / 24]) / (1 / 6)     # in units of the coarsest h
     assert errors[1] < 0.75 * errors[0] and errors[2] < 0.75 * errors[1]
 
@@ -139,8 +138,7 @@ def test_refined_problem_matches_the_conic_solve():
     V = meshes.perturbed(V, F, 0.02, seed=3)
     mesh = wrd.Mesh(V, F)
     points = [(11, (0.2, 0.5, 0.3)), (300, (0.0, 0.4, 0.6))]
-    with wrd.tolerances.override(**TIGHT):
-        res = wrd.DistanceSolver(mesh, alpha_hat=0.05).solve(points=points)
+    res = wrd.DistanceSolver(mesh, alpha_hat=0.05, options=TIGHT).solve(points=points)
     R = res.refined_mesh
     sources = np.flatnonzero(res.refined_distance == 0)
     assert sources.size == 2 and sources.min() >= mesh.n_vertices
@@ -170,19 +168,18 @@ def test_equator_curve_on_the_sphere():
     errors = []
     th = np.linspace(0, 2 * np.pi, 12, endpoint=False) + 0.1
     ring = np.stack([np.cos(th), np.sin(th), 0 * th], axis=1)
-    with wrd.tolerances.override(**TIGHT):
-        for sub in (3, 4):
-            mesh = _sphere(sub)
-            res = wrd.DistanceSolver(mesh, alpha_hat=0.0).solve(curve=wrd.surface_points(mesh, ring), closed=True)
-            Z = mesh.vertices[:, 2]
-            exact = np.abs(np.pi / 2 - np.arccos(np.clip(Z / np.linalg.norm(mesh.vertices, axis=1), -1, 1)))
-            err = np.abs(res.distance - exact).max()
-            assert err <= 2 * _mean_edge(mesh)
-            errors.append(err)
-            on_curve = res.refined_mesh.vertices[res.refined_distance == 0]
-            # crossings near a vertex move to it (tolerances.curve_snap): within 0.2 h of the equator
-            assert np.abs(on_curve[:, 2]).max() < 0.2 * _mean_edge(mesh) and len(on_curve) > 12
-            assert (res.signed_distance[Z > 1e-9] < 0).all() and (res.signed_distance[Z < -1e-9] > 0).all()
+    for sub in (3, 4):
+        mesh = _sphere(sub)
+        res = wrd.DistanceSolver(mesh, alpha_hat=0.0, options=TIGHT).solve(curve=wrd.surface_points(mesh, ring), closed=True)
+        Z = mesh.vertices[:, 2]
+        exact = np.abs(np.pi / 2 - np.arccos(np.clip(Z / np.linalg.norm(mesh.vertices, axis=1), -1, 1)))
+        err = np.abs(res.distance - exact).max()
+        assert err <= 2 * _mean_edge(mesh)
+        errors.append(err)
+        on_curve = res.refined_mesh.vertices[res.refined_distance == 0]
+        # crossings near a vertex move to it (tolerances.curve_snap): within 0.2 h of the equator
+        assert np.abs(on_curve[:, 2]).max() < 0.2 * _mean_edge(mesh) and len(on_curve) > 12
+        assert (res.signed_distance[Z > 1e-9] < 0).all() and (res.signed_distance[Z < -1e-9] > 0).all()
     assert errors[1] < 0.7 * errors[0]
 
 

@@ -22,6 +22,7 @@ import closed_forms
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
+from conftest import TIGHT
 from warp_regdist.cli import main
 from warp_regdist.output.export import save_vtu
 from warp_regdist.geometry.operators import build_operators
@@ -156,7 +157,6 @@ def test_scale_invariance(device):
     assert np.abs(wrong.solve(source).distance - u10).max() > 0.05 * u10.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 @pytest.mark.parametrize("case", ["cube corner", "ball boundary"])
 def test_tiny_tet_mesh_matches_conic_solver(device, case):
     if case == "cube corner":
@@ -167,7 +167,7 @@ def test_tiny_tet_mesh_matches_conic_solver(device, case):
         V, T = meshes.ball_tets(1, 3)  # 85 vertices, 560 tets
         sources, alpha_hat = wrd.boundary_vertices(wrd.Mesh(V, T)), 0.1
     expected = rs.solve_reference(V, T, sources, alpha_hat * _volume(V, T) ** (1.0 / 3.0))
-    res = wrd.DistanceSolver(wrd.Mesh(V, T), alpha_hat=alpha_hat, device=device).solve(sources)
+    res = wrd.DistanceSolver(wrd.Mesh(V, T), alpha_hat=alpha_hat, device=device, options=TIGHT).solve(sources)
     assert res.converged
     assert np.abs(res.distance - expected).max() <= 1e-3 * expected.max()
 

@@ -11,6 +11,7 @@ import pytest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
+from conftest import TIGHT
 
 
 @pytest.fixture(scope="module")
@@ -25,21 +26,19 @@ def _reference_error(V, F, sources, alpha_hat, distance):
     return np.abs(distance - expected).max() / expected.max()
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_continuation_in_alpha_hat_reaches_the_new_minimizer(bumpy, device):
     V, F = bumpy
     mesh = wrd.Mesh(V, F)
-    first = wrd.DistanceSolver(mesh, 0.05, device=device).solve([100])
-    solver = wrd.DistanceSolver(mesh, 0.1, device=device)
+    first = wrd.DistanceSolver(mesh, 0.05, device=device, options=TIGHT).solve([100])
+    solver = wrd.DistanceSolver(mesh, 0.1, device=device, options=TIGHT)
     cold, warm = solver.solve([100]), solver.solve([100], initial=first)
     assert warm.converged and warm.iterations < cold.iterations
     assert _reference_error(V, F, [100], 0.1, warm.distance) <= 1e-3
 
 
-@pytest.mark.usefixtures("tight_tolerances")
 def test_warm_start_from_another_source_reaches_the_new_minimizer(bumpy, device):
     V, F = bumpy
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device=device)
+    solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device=device, options=TIGHT)
     warm = solver.solve([101], initial=solver.solve([100]))
     assert warm.converged and warm.distance[101] == 0.0
     assert _reference_error(V, F, [101], 0.05, warm.distance) <= 1e-3
@@ -49,11 +48,11 @@ def test_warm_start_from_the_answer_stops_within_two_change_tests(bumpy):
     solver = wrd.DistanceSolver(wrd.Mesh(*bumpy), 0.05)
     res = solver.solve([100])
     again = solver.solve([100], initial=res)
-    assert res.iterations > 2 * wrd.tolerances.change_window
+    assert res.iterations > 2 * solver.options.change_window
     # the first change test extrapolates at the rate cap (20 times the window's change), the second at each vertex's rate
-    assert again.iterations <= 2 * wrd.tolerances.change_window
+    assert again.iterations <= 2 * solver.options.change_window
     assert np.abs(again.distance - res.distance).max() <= 1e-3 * res.distance.max()
-    assert res.duals.shape == (len(bumpy[1]), 3) and res.penalty == wrd.tolerances.rho_max
+    assert res.duals.shape == (len(bumpy[1]), 3) and res.penalty == solver.options.rho_max
 
 
 def test_solve_many_keeps_duals_per_column_and_takes_them_back(bumpy):
@@ -64,7 +63,7 @@ def test_solve_many_keeps_duals_per_column_and_takes_them_back(bumpy):
     single = solver.solve([100])
     np.testing.assert_allclose(res.duals[:, :, 1], single.duals, atol=1e-12)
     again = solver.solve_many(sets, initial=res)
-    assert (again.iterations <= 2 * wrd.tolerances.change_window).all()
+    assert (again.iterations <= 2 * solver.options.change_window).all()
     # a distance alone (no duals) is a start too; the iterations then follow the fixed schedule
     assert solver.solve_many(sets, initial=wrd.DistanceResult(distance=res.distance)).converged.all()
 

@@ -47,14 +47,14 @@ else:  # the worker solves its part (run to max_iterations) while the parent sle
     V, F = meshes.icosphere(4, 1.0)
     run_iterations = solver_module.run_iterations
 
-    def sleeping(problem, start, max_iterations, check_every=1):
+    def sleeping(problem, start, max_iterations, check_every=1, poll=None):
         advance = problem.advance
         problem.advance = lambda it, count: (advance(it, count), it >= 3 and ready())
-        return run_iterations(problem, start, max_iterations, check_every)
+        return run_iterations(problem, start, max_iterations, check_every, poll)
 
     solver_module.run_iterations = sleeping
-    with wrd.tolerances.override(eps_rel=1e-12, eps_rel_dual=1e-12, max_iterations=10**6):
-        wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu", workers=2).solve_many([[i] for i in range(16)])
+    wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu", workers=2).solve_many(
+        [[i] for i in range(16)], eps_rel=1e-12, eps_rel_dual=1e-12, max_iterations=10**6)
 """
 
 
@@ -155,7 +155,7 @@ def test_a_dead_worker_is_reported_at_the_next_check(monkeypatch):
     advances = []
     others = _worker_pids(os.getpid())  # workers of pools that other tests left to the garbage collector
 
-    def kill_the_worker_at_three(problem, start, max_iterations, check_every=1):
+    def kill_the_worker_at_three(problem, start, max_iterations, check_every=1, poll=None):
         advance = problem.advance
 
         def counted(it, count):
@@ -167,14 +167,14 @@ def test_a_dead_worker_is_reported_at_the_next_check(monkeypatch):
                 os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)  # dead before the next check
 
         problem.advance = counted
-        return run_iterations(problem, start, max_iterations, check_every)
+        return run_iterations(problem, start, max_iterations, check_every, poll)
 
     monkeypatch.setattr(solver_module, "run_iterations", kill_the_worker_at_three)
-    with warnings.catch_warnings(), wrd.tolerances.override(eps_rel=1e-12, eps_rel_dual=1e-12):
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
         with pytest.raises(wrd.WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGKILL \(the "
                                               r"out-of-memory killer sends it, as does kill -9\)"):
-            solver.solve_many(sets)
+            solver.solve_many(sets, eps_rel=1e-12, eps_rel_dual=1e-12)
     assert len(advances) == 3  # raised at the check right after the death, not at the end of the solve
     monkeypatch.undo()
     again = solver.solve_many(sets)  # a fresh pool
@@ -227,16 +227,16 @@ def test_worker_columns_do_not_depend_on_the_environment(monkeypatch):
         wrd.DistanceSolver(mesh, 0.05, hierarchy=small)
 
 
-def test_workers_run_under_the_callers_tolerances():
-    """The caller's tolerances travel with each call (a copy), so an override in the parent
-    governs the worker's columns too: the same iterations and values as in one process."""
+def test_workers_run_under_the_callers_options():
+    """The call's options travel with it, so an override in the parent governs the worker's columns
+    too: the same iterations and values as in one process."""
     V, F = meshes.icosphere(2, 1.0)
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=6), F)
     sets = [[j] for j in range(9)]
-    with wrd.tolerances.override(eps_rel=1e-4, eps_rel_dual=0.05, change_window=5):
-        with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
-            split = solver.solve_many(sets)
-        alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
+    changed = dict(eps_rel=1e-4, eps_rel_dual=0.05, change_window=5)
+    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+        split = solver.solve_many(sets, **changed)
+    alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets, **changed)
     default = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
     np.testing.assert_array_equal(split.iterations, alone.iterations)
     np.testing.assert_array_equal(split.distance, alone.distance)

@@ -6,7 +6,7 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 
 import warp as _wp
 
-from . import _moved, metrics
+from . import metrics
 from .solvers.admm import PenaltySchedule
 from .solvers.all_pairs_admm import AllPairsSolver, all_pairs
 from .output.export import save_vtu
@@ -24,6 +24,7 @@ from .solvers.gradients import Gradients
 from .solvers.solver import DistanceSolver
 from .matrices.source_rows import distance_matrix
 from .geometry.tetrahedralize import tetrahedralize
+from .options import AllPairsOptions, SolverOptions
 from .tolerances import Tolerances, tolerances
 from .output.viewer import show
 
@@ -31,8 +32,6 @@ __version__ = "0.1.0"
 
 if _wp.config.log_level == _wp.LOG_INFO:  # Warp's default: its banner and module loads printed on stdout
     _wp.config.log_level = _wp.LOG_WARNING
-
-_moved.install()
 
 
 def __getattr__(name):
@@ -47,4 +46,4 @@ def __getattr__(name):
 __all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "__version__"]
+           "SolverOptions", "AllPairsOptions", "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "__version__"]

@@ -39,9 +39,9 @@ def _warp_device(tensor):
 
 class _Distance(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, vertices, alpha_hat, faces, sources):
+    def forward(ctx, vertices, alpha_hat, faces, sources, options):
         mesh = Mesh(vertices.detach().cpu().numpy().astype(np.float64), faces)
-        solver = DistanceSolver(mesh, float(alpha_hat), device=_warp_device(vertices), workers=1)
+        solver = DistanceSolver(mesh, float(alpha_hat), device=_warp_device(vertices), workers=1, options=options)
         with warnings.catch_warnings():  # a solve that does not converge raises below instead
             warnings.simplefilter("ignore", ConvergenceWarning)
             res = solver.solve(sources)
@@ -58,10 +58,10 @@ class _Distance(torch.autograd.Function):
         dx, da = adjoint_gradients(ctx.solver, ctx.solution, b)
         dv = torch.as_tensor(dx, dtype=grad.dtype, device=grad.device) if ctx.needs_input_grad[0] else None
         dalpha = torch.tensor(da, dtype=grad.dtype, device=grad.device) if ctx.needs_input_grad[1] else None
-        return dv, dalpha, None, None
+        return dv, dalpha, None, None, None
 
 
-def distance(vertices, faces, sources, alpha_hat=0.05):
+def distance(vertices, faces, sources, alpha_hat=0.05, options=None):
     """Regularized distance (n,) from vertex ``sources``, differentiable with respect to ``vertices``
     and ``alpha_hat``.
 
@@ -71,6 +71,8 @@ def distance(vertices, faces, sources, alpha_hat=0.05):
     faces : (m, 3) or (m, 4) integer array or tensor (triangles or tetrahedra)
     sources : list of vertex indices
     alpha_hat : float or 0-d torch.Tensor (differentiable when it requires grad)
+    options : SolverOptions or None
+        The solve's settings (``gradient_smoothing`` among them); None: the defaults.
 
     Returns
     -------
@@ -89,4 +91,4 @@ def distance(vertices, faces, sources, alpha_hat=0.05):
         alpha_hat = torch.tensor(float(alpha_hat), dtype=vertices.dtype)
     elif alpha_hat.numel() != 1:
         raise ValueError(f"expected alpha_hat as a float or a one-element tensor, got shape {tuple(alpha_hat.shape)}")
-    return _Distance.apply(vertices, alpha_hat.reshape(()), np.asarray(faces), list(sources))
+    return _Distance.apply(vertices, alpha_hat.reshape(()), np.asarray(faces), list(sources), options)

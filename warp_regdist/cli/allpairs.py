@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
     )
     allpairs.add_argument("--accuracy", type=float, default=None, metavar="E",
                           help="the max error accepted, as a fraction of the max distance, in (0, 0.1]: the stopping "
-                          "tolerances follow from it (default: the tolerances' settings)")
+                          "tolerances follow from it (default: 0.005, the defaults of AllPairsOptions)")
     allpairs.add_argument("--output", required=True, metavar="FILE", help="distance matrix (.npy)")
     allpairs.add_argument(
         "--checkpoint",

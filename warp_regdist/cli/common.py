@@ -198,8 +198,21 @@ def warnings_to_stderr(reported_by_caller=()):
                 warn(str(w.message))
 
 
+def max_iterations_option(p: argparse.ArgumentParser) -> None:
+    """--max-iterations, for the commands that run single-source solves."""
+    p.add_argument("--max-iterations", type=int, default=None, metavar="N",
+                   help="ADMM iteration cap of each solve (default: 10000)")
+
+
+def single_source_options(args: argparse.Namespace):
+    """The SolverOptions of --max-iterations."""
+    from ..options import SolverOptions
+
+    return SolverOptions() if args.max_iterations is None else SolverOptions(max_iterations=args.max_iterations)
+
+
 def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbose: bool = False,
-          where=None, quiet: bool = False, **regularization):
+          where=None, quiet: bool = False, options=None, **regularization):
     """Solve once; returns (solver, result), reporting non-convergence on stderr
     (and, with ``verbose``, the ADMM's progress every 2 s on stderr; unless ``quiet``, a first
     compile of the kernels). ``where``: the
@@ -207,7 +220,7 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
     keywords regularizer, beta_hat, vector_field."""
     from .. import ConvergenceWarning, DistanceSolver
 
-    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, **regularization)
+    solver = DistanceSolver(mesh, alpha_hat=alpha_hat, device=device, dtype=dtype, options=options, **regularization)
     announce_compile(dtype, quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose, **(where or {}))

@@ -6,8 +6,8 @@ import argparse
 import os
 
 from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_status, load, max_distance_option,
-                     parse_sources, parse_surface_points, solve, solver_options, subcommand, summary, warn,
-                     write_values)
+                     max_iterations_option, parse_sources, parse_surface_points, single_source_options, solve,
+                     solver_options, subcommand, summary, warn, write_values)
 
 
 def add_parser(sub) -> None:
@@ -93,6 +93,7 @@ def add_parser(sub) -> None:
         "minimizer, about 5 times the solve's time (vertex sources, Dirichlet regularizer; docs/method.md section 10)",
     )
     max_distance_option(distance)
+    max_iterations_option(distance)
     solver_options(distance)
 
 
@@ -134,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
         where["closed"] = args.closed
         described.append(("the closed curve through " if args.closed else "the curve through ") + text)
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
-                           where=where, quiet=args.quiet, **_regularization(args, mesh))
+                           where=where, quiet=args.quiet, options=single_source_options(args),
+                           **_regularization(args, mesh))
     if args.polish and result.converged:
         result = result.polish()
     elif args.polish:

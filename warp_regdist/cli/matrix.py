@@ -11,7 +11,8 @@ import sys
 import numpy as np
 
 from .common import (DEMO_ALPHA_HAT, PROG, announce_compile, check_output, load, max_distance_option,
-                     read_xyz, solver_options, subcommand, warnings_to_stderr)
+                     max_iterations_option, read_xyz, single_source_options, solver_options, subcommand,
+                     warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -57,6 +58,7 @@ def add_parser(sub) -> None:
     cluster.add_argument("--workers", type=int, metavar="N",
                          help="solve on a local Dask cluster of N worker processes (one thread each)")
     max_distance_option(matrix)
+    max_iterations_option(matrix)
     solver_options(matrix)
 
 
@@ -143,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             D = distance_matrix(mesh, args.alpha_hat, sources=sources, symmetrize=args.symmetrize,
                                 device=args.device, dtype=args.dtype, chunk=args.chunk, client=client,
-                                out=args.output, progress=progress, points=points)
+                                out=args.output, progress=progress, points=points,
+                                options=single_source_options(args))
         except ImportError as exc:
             raise ValueError(f"expected zarr for a .zarr --output (pip install 'warp-regdist[distributed]'), "
                              f"got {exc}") from None

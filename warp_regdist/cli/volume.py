@@ -8,7 +8,8 @@ import sys
 
 import numpy as np
 
-from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, exit_status, load, parse_sources, read_xyz, solve,
+from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, exit_status, max_iterations_option,
+                     single_source_options, load, parse_sources, read_xyz, solve,
                      solver_options, subcommand, summary)
 
 
@@ -58,6 +59,7 @@ def add_parser(sub) -> None:
                         help="largest tetrahedron volume in the surface's units cubed (replaces the default --max-edge)")
     volume.add_argument("--quality", type=float, default=1.5, metavar="Q",
                         help="largest radius-edge ratio of a tetrahedron, > 1 (default: 1.5)")
+    max_iterations_option(volume)
     solver_options(volume)
 
 
@@ -118,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         described = (f"{len(points)} surface points, vertices {listed}{more} (moved onto the surface by at most "
                      f"{moved.max():.3g})")
     solver, result = solve(mesh, sources, args.alpha_hat, args.device, args.dtype, verbose=not args.quiet,
-                           quiet=args.quiet)
+                           quiet=args.quiet, options=single_source_options(args))
     save_vtu(args.output, mesh, {"distance": result.distance})
     written = [args.output]
     if args.png is not None:

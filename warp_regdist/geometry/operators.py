@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["Operators", "build_operators", "element_gradients", "element_diameters"]
+__all__ = ["Operators", "build_operators", "element_gradients", "element_diameters", "largest_angles"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +27,8 @@ class Operators:
 
     Attributes
     ----------
+    elements : (m, d + 1) ndarray of int64
+        The elements the operators are built on (the mesh's own).
     basis : (m, d + 1, 3) ndarray
         Hat-function gradients per element and local vertex.
     element_volumes : (m,) ndarray
@@ -42,8 +44,11 @@ class Operators:
     vertex_elements : tuple of three ndarrays (offsets (n+1,), element (k,), local (k,))
         For vertex i, entries offsets[i]:offsets[i+1] list the incident elements and the
         local index of i in each: the gather form of D.
+    diameters : (m,) ndarray
+        The longest edge of each element.
     """
 
+    elements: np.ndarray
     basis: np.ndarray
     element_volumes: np.ndarray
     vertex_volumes: np.ndarray
@@ -51,6 +56,7 @@ class Operators:
     grad: sp.csr_matrix
     stiffness: sp.csr_matrix
     vertex_elements: tuple
+    diameters: np.ndarray
 
     @property
     def length_scale(self):
@@ -145,4 +151,5 @@ def build_operators(mesh):
     W = ((W + W.T) * 0.5).tocsr()
     W.sort_indices()
     AV = np.bincount(T.ravel(), weights=np.repeat(vol / k, k), minlength=n)
-    return Operators(basis, vol, AV, float(vol.sum()), G, W, (offsets, element, corner))
+    return Operators(T, basis, vol, AV, float(vol.sum()), G, W, (offsets, element, corner),
+                     element_diameters(mesh.vertices, T))

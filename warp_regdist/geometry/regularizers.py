@@ -33,10 +33,8 @@ HESSIAN_TOLERANCE_FACTOR = 1.0 / 20.0
 """The Hessian's stopping tolerances are the defaults times this (docs/method.md section 8)."""
 
 SMALL_ALPHA_HAT, SMALL_ALPHA_FACTOR = 0.02, 0.25
-"""Below alpha_hat 0.02 the Dirichlet and vector-field tolerances shrink linearly to 1/4 at 0. Towards
-alpha 0 the problem nears a linear program, the ADMM creeps and its change test held while u
-was still 0.7-1.1% from the minimizer (decimated spot with holes at alpha_hat 0 and 0.01);
-with these factors every such case of benchmarks/stopping.py stops within 0.5%."""
+"""Below alpha_hat 0.02 the Dirichlet and vector-field tolerances shrink linearly to 1/4 at 0: towards
+alpha 0 the problem nears a linear program and the ADMM creeps (docs/design/stopping.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,11 +54,11 @@ class Regularizer:
         W_D on the same pattern as ``weights`` (None for "dirichlet").
     tolerance_factor : float
         Factor on the ADMM stopping tolerances and on the u-step's CG tolerance
-        (``tolerances.cg_fraction``): 1; down to 1/4 below alpha_hat 0.02
+        (the options' ``cg_fraction``): 1; down to 1/4 below alpha_hat 0.02
         (:func:`small_alpha_factor`); 1/20 for the Hessian, whose inexact u-steps otherwise
         keep the primal residual above its tolerance.
     rho_factors : (float, float)
-        Factors on ``tolerances.rho0`` and ``tolerances.rho_max``: (1, 1), or (1, 8) for the
+        Factors on the options' ``rho0`` and ``rho_max``: (1, 1), or (1, 8) for the
         Hessian (penalty up to 64 sqrt(A)), whose fourth-order term needs larger penalties
         to converge in a few hundred iterations.
     """
@@ -71,6 +69,12 @@ class Regularizer:
     stiffness: sp.csr_matrix | None
     tolerance_factor: float
     rho_factors: tuple
+
+    @property
+    def rescaled(self):
+        """Whether the u-step matrix is the rescaled stiffness (alpha + rho) W_D ("dirichlet"): a new rho
+        only divides the right-hand side, and the PCG keeps W_D."""
+        return self.weights is None
 
     def system(self, rho):
         """The u-step matrix K = alpha W + rho W_D, (n, n) csr on the union pattern (not for "dirichlet")."""

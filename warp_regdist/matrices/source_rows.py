@@ -13,6 +13,7 @@ is no minimizer of the all-pairs problem.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import time
 import warnings
@@ -28,13 +29,14 @@ from ..geometry.boundary_refinement import refine_boundary
 from ..geometry.surface_points import check_surface_points, refine
 from ..errors import ConvergenceWarning
 from .row_solves import solve_rows
+from ..options import SolverOptions
 from ..solvers.solver import DistanceSolver
 
 __all__ = ["distance_matrix"]
 
 
 def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
-                    chunk=64, workers=None, client=None, out=None, progress=None, points=None):
+                    chunk=64, workers=None, client=None, out=None, progress=None, points=None, options=None):
     """Single-source distances from many vertices, stacked as rows.
 
     Parameters
@@ -74,6 +76,9 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     progress : callable or None
         ``progress(blocks_done, blocks_total, seconds)`` after each block is stored (and once
         at the start, counting the blocks found done).
+    options : SolverOptions or None
+        The settings of every row's solve (None: the defaults); they travel with the tasks to a
+        cluster's workers and are part of the fingerprint of ``out``.
 
     Returns
     -------
@@ -109,7 +114,10 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         raise ValueError(f"expected sources in [0, {n - 1}], got {src.min() if src.min() < 0 else src.max()}")
     src = src.astype(np.int64)
     chunk = int(chunk)
-    problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype)
+    if options is not None and not isinstance(options, SolverOptions):
+        raise ValueError(f"expected options as a SolverOptions or None, got {type(options).__name__}")
+    options = SolverOptions() if options is None else options
+    problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype, options=options)
     if client is not None:
         distributed.check_client(client)
         if out is None:
@@ -119,7 +127,8 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
             return lazy if landmarks is None else lazy[:, :n]
     fingerprint = dict(mesh_sha256=mesh.sha256(), n=int(n), alpha_hat=alpha_hat, dtype=dtype,
                        sources_sha256=hashlib.sha256(src.tobytes()).hexdigest(), k=int(src.size), chunk=chunk,
-                       symmetrize=bool(symmetrize))
+                       symmetrize=bool(symmetrize), options={f.name: _recorded(getattr(options, f.name))
+                                                             for f in dataclasses.fields(options)})
     if landmarks is not None:
         fingerprint["points_sha256"] = points_sha256
     with open_rows(out, (src.size, n), chunk, dtype, fingerprint) as store:
@@ -144,6 +153,11 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         if symmetrize:
             store.symmetrize(src)
         return store.result()
+
+
+def _recorded(value):
+    """An options value as the fingerprint records it: a JSON number, bool or null as it is, else its repr."""
+    return value if value is None or isinstance(value, (bool, int, float)) else repr(value)
 
 
 def _landmarks(mesh, points):

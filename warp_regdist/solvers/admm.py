@@ -1,42 +1,46 @@
-"""The ADMM engine shared by DistanceSolver and all_pairs (docs/method.md section 8): the loop
-:func:`run_iterations` and its swappable parts.
+"""The ADMM engine shared by DistanceSolver and AllPairsSolver (docs/method.md section 8): the loop
+:func:`run_iterations` over an :class:`AdmmProblem`, and the penalty schedule :class:`PenaltySchedule`.
 
-:func:`run_iterations` drives a problem that supplies ``status(it)`` (the tests of its iterate
-after ``it`` iterations, read from the device) and ``advance(it, count)`` (``count`` iterations
-on the device, ending with the device work of the next test). :class:`PenaltySchedule` is the
-penalty rho at iteration k; the stopping rule is :mod:`warp_regdist.solvers.stopping`. Both solvers build
-them from :data:`warp_regdist.tolerances` (overridable per call with ``tolerances.override``);
-``DistanceSolver.solve``, ``solve_many`` and ``all_pairs`` take ``schedule=`` to swap the
-schedule for a :class:`PenaltySchedule` or any object with ``rho(k)`` and ``offset_for(penalty)``.
+The stopping rule is :mod:`warp_regdist.solvers.stopping`; both solvers build their schedule from
+their options (``rho0``, ``rho_max``, ``rho_doubling``) unless the options carry a ``schedule``,
+any object with ``rho(k)`` and ``offset_for(penalty)``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Protocol
 
 import numpy as np
 
 from . import interrupt
-from .processes import check_workers
 
-__all__ = ["run_iterations", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule", "check_schedule"]
+__all__ = ["run_iterations", "AdmmProblem", "CONVERGED", "MAX_ITERATIONS", "INTERRUPTED", "PenaltySchedule"]
 
 CONVERGED, MAX_ITERATIONS, INTERRUPTED = "converged", "max_iterations", "interrupted"
 """Why :func:`run_iterations` stopped."""
 
 
-def run_iterations(problem, start, max_iterations, check_every=1):
+class AdmmProblem(Protocol):
+    """What :func:`run_iterations` drives."""
+
+    def status(self, it: int) -> bool:
+        """Whether the iterate after ``it`` iterations passes its stopping test (read from the device; it
+        may also collect finished columns, record history, report progress)."""
+
+    def advance(self, it: int, count: int) -> None:
+        """Iterations it .. it + count - 1 on the device, ending with the device work of the next test."""
+
+
+def run_iterations(problem, start, max_iterations, check_every=1, poll=None):
     """The ADMM loop: from iteration ``start``, test, then advance ``check_every`` iterations at a time.
 
-    ``problem.status(it)`` returns True when the iterate after ``it`` iterations passes its
-    stopping test (it may also collect finished columns, record history, report progress);
-    ``problem.advance(it, count)`` runs iterations it .. it + count - 1 and the device work of the
-    next test. The loop stops at the first passing test, at ``max_iterations`` (the last advance
-    is shortened to end there), or at a Ctrl-C caught by :func:`warp_regdist.solvers.interrupt.catch_interrupt`
-    (checked before each test: an interrupted run returns after the advance under way, untested).
-    Before each test it also raises :class:`~warp_regdist.errors.WorkerError` if a worker
-    process of this process has died.
+    Stops at the first passing test, at ``max_iterations`` (the last advance is shortened to end
+    there), or at a Ctrl-C caught by :func:`warp_regdist.solvers.interrupt.catch_interrupt` (checked
+    before each test: an interrupted run returns after the advance under way, untested). ``poll``,
+    when given, is called before each test and may raise to end the run (the solvers check their
+    worker processes there).
 
     Returns
     -------
@@ -45,7 +49,8 @@ def run_iterations(problem, start, max_iterations, check_every=1):
     """
     it = start
     while True:
-        check_workers()
+        if poll is not None:
+            poll()
         if interrupt.requested():
             return it, INTERRUPTED
         if problem.status(it):
@@ -93,20 +98,9 @@ class PenaltySchedule:
         return max(0.0, self.doubling * math.log2(penalty / self.scale / self.rho0))
 
     @classmethod
-    def single_source(cls, tol, rho_factors, scale):
-        """DistanceSolver's schedule: ``tol.rho0``, ``tol.rho_max`` times the regularizer's
-        ``rho_factors`` (f0, f1), doubling every ``tol.rho_doubling`` iterations."""
-        return cls(rho_factors[0] * tol.rho0, rho_factors[1] * tol.rho_max, tol.rho_doubling, scale)
-
-    @classmethod
-    def all_pairs(cls, tol, scale):
-        """all_pairs' schedule: ``tol.rho0``, ``tol.pairs_rho_max``, ``tol.pairs_rho_doubling``."""
-        return cls(tol.rho0, tol.pairs_rho_max, tol.pairs_rho_doubling, scale)
-
-
-def check_schedule(schedule):
-    """``schedule`` itself when it has callable ``rho`` and ``offset_for``; ValueError otherwise."""
-    if not (callable(getattr(schedule, "rho", None)) and callable(getattr(schedule, "offset_for", None))):
-        raise ValueError(f"expected schedule as a PenaltySchedule or an object with rho(k) and offset_for(penalty), "
-                         f"got {type(schedule).__name__}")
-    return schedule
+    def of(cls, options, scale, rho_factors=(1.0, 1.0)):
+        """The schedule of a solver's ``options``: their ``schedule`` when they carry one, else rho0 and
+        rho_max (times the regularizer's ``rho_factors``) and rho_doubling, in units of ``scale``."""
+        if options.schedule is not None:
+            return options.schedule
+        return cls(rho_factors[0] * options.rho0, rho_factors[1] * options.rho_max, options.rho_doubling, scale)

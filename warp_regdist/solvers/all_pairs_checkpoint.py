@@ -1,23 +1,60 @@
-"""All-pairs checkpoints: their size, the room for them, the fingerprint of the problem they hold,
-and reading one back as data (never unpickled): checked against the problem and against the
-CRC-32 of every array before use, then read one array at a time (a resumed run needs one state
-array more than a fresh one, not a second copy of the state)."""
+"""All-pairs checkpoints: the file a run writes (:class:`Checkpoint`: its size, the room for it, atomic
+saves), the fingerprint of the problem it holds, and reading one back as data (never unpickled):
+checked against the problem and against the CRC-32 of every array before use, then read one array at
+a time (a resumed run needs one state array more than a fresh one, not a second copy of the state)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import os
+import warnings
 import zipfile
 import zlib
 
 import numpy as np
 
-from .all_pairs_state import STATE_ROWS
+from ..atomic_write import write_atomic
+from ..errors import CheckpointWarning, WriteError
 from ..kernels.lanes import SCALARS, lane_width
+from .all_pairs_state import STATE_ROWS
 
-__all__ = ["checkpoint_bytes", "checkpoint_room", "check_no_progress", "saved_iteration", "problem_fingerprint",
-           "read_checkpoint"]
+__all__ = ["Checkpoint", "checkpoint_bytes", "checkpoint_room", "check_no_progress", "saved_iteration",
+           "problem_fingerprint", "read_checkpoint"]
+
+
+class Checkpoint:
+    """The checkpoint file of one run: ``path``, written every ``seconds``, holding ``fingerprint``
+    (the problem), at most ``bytes`` large; ``saved_at`` is the iteration the file holds (None until
+    this run wrote it, or resumed it).
+
+    :meth:`save` writes atomically; a save that fails (a full disk, a read-only directory) warns
+    once with a :class:`~warp_regdist.CheckpointWarning` and leaves the last checkpoint as it was.
+    """
+
+    def __init__(self, path, seconds, fingerprint, bytes):
+        self.path, self.seconds, self.fingerprint, self.bytes = os.fspath(path), seconds, fingerprint, bytes
+        self.saved_at = None
+        self.failed = False
+
+    def save(self, arrays, iteration):
+        """Write ``arrays`` (name -> array) with the fingerprint as the state of ``iteration``."""
+        data = dict(arrays, fingerprint=np.array(json.dumps(self.fingerprint)))
+
+        def write(tmp):
+            with open(tmp, "wb") as f:
+                np.savez(f, **data)
+
+        try:
+            write_atomic(self.path, write, "the checkpoint", size=self.bytes)
+            self.saved_at = iteration
+        except WriteError as exc:
+            if not self.failed:
+                kept = (f" (the checkpoint of iteration {self.saved_at} stays valid)" if self.saved_at is not None
+                        else "")
+                warnings.warn(f"{exc}; the run goes on without this checkpoint{kept}, and tries again at the next "
+                              "one", CheckpointWarning, stacklevel=3)
+            self.failed = True
 
 
 def checkpoint_bytes(n, m, dtype, max_iterations):

@@ -4,7 +4,6 @@ the result."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -16,25 +15,14 @@ import numpy as np
 from . import interrupt
 from .admm import CONVERGED, INTERRUPTED, run_iterations
 from .all_pairs_state import STATE_ROWS
-from ..atomic_write import write_atomic
-from ..errors import CheckpointWarning, ConvergenceWarning, WriteError
+from ..errors import ConvergenceWarning
 from ..kernels.all_pairs import H2, RX2, SX2, U2, X2
+from .processes import check_workers
 from .progress import Progress, StopTest
 from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
 from .results import AllPairsResult
 
-__all__ = ["Checkpointing", "PairsRun", "final_result"]
-
-
-@dataclasses.dataclass(frozen=True)
-class Checkpointing:
-    """Where (``path``, None: no checkpoints) and how often (``seconds``) a run writes its state,
-    the ``fingerprint`` of the problem written with it and the most ``bytes`` a checkpoint takes."""
-
-    path: object
-    seconds: float
-    fingerprint: dict
-    bytes: int
+__all__ = ["PairsRun", "final_result"]
 
 
 def _estimate(change):
@@ -62,11 +50,10 @@ class PairsRun:
     uninterrupted run's arithmetic exactly.
     """
 
-    def __init__(self, state, settings, schedule, memory, max_iterations, callback, checkpointing, excess):
-        self.state, self.settings, self.schedule = state, settings, schedule
-        self.memory, self.max_iterations, self.callback = memory, max_iterations, callback
-        self.checkpoint, self.checkpoint_seconds = checkpointing.path, checkpointing.seconds
-        self.fingerprint, self.checkpoint_size = checkpointing.fingerprint, checkpointing.bytes
+    def __init__(self, state, options, schedule, memory, callback, checkpoint, excess):
+        self.state, self.options, self.schedule = state, options, schedule
+        self.memory, self.max_iterations, self.callback = memory, options.max_iterations, callback
+        self.checkpoint = checkpoint
         self.start = 0
         self.history = []
         self.cg_total = 0
@@ -74,12 +61,10 @@ class PairsRun:
         self.last_penalties = None
         self.seconds_before = 0.0
         # U as one column: its change test (snapshot, the last window's change, the change to come)
-        self.change_test = ExtrapolatedChangeTest(settings.change_window, settings.eps_change, 1)
+        self.change_test = ExtrapolatedChangeTest(options.change_window, options.eps_change, 1)
         # stopping.gradient_excess of the U of the last change test (measured on the device); excess(U (n, n)):
         # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
-        self.saved_at = None        # the iteration the checkpoint file holds (None: none written by this run)
-        self.save_failed = False
 
     def restore(self, saved):
         st = self.state
@@ -100,15 +85,14 @@ class PairsRun:
                                           window_change=[window_change], change=[change]))
             if "excess" in saved:
                 self.last_excess = float(saved["excess"])
-            elif self.settings.eps_excess < math.inf:  # a checkpoint without it: measured on the host
+            elif self.options.eps_excess < math.inf:  # a checkpoint without it: measured on the host
                 n = self.state.n
                 self.last_excess = self.excess(self.change_test.snapshot.reshape(n, -1)[:, :n])
 
     def warm_start(self, saved):
         """Start from the iterate of checkpoint ``saved`` (another problem on this mesh): X, U, H, v
-        and the divergences recomputed from v. The penalty schedule starts again: continued from
-        the carried penalty, continuation in alpha_hat on a bumpy 162-vertex sphere took 850-1,300
-        iterations where a cold start took 450-1,000, restarted 250-700."""
+        and the divergences recomputed from v. The penalty schedule starts again (continuing it from
+        the carried penalty took more iterations than a cold start: docs/design/all-pairs.md)."""
         st = self.state
         for name in ("X", "U", "H", "v"):
             st.put(name, saved[name])
@@ -118,15 +102,13 @@ class PairsRun:
         self.change_test.reset(st.view("U").reshape(-1, 1))
 
     def save(self, it, seconds, final=None):
-        """Write the state at the top of iteration ``it`` to the checkpoint file, atomically; with
-        ``final`` (dict of residuals, tolerance) the converged iterate and its result instead. A save
-        that fails (a full disk) warns with a CheckpointWarning and leaves the last checkpoint as it was."""
+        """Write the state at the top of iteration ``it`` to the checkpoint; with ``final`` (dict of
+        residuals, tolerance) the converged iterate and its result instead."""
         st = self.state
         data = {name: st.view(name) for name in (("X", "U", "H") if final else STATE_ROWS) + ("v",)}
         data.update(final or {})
         data.update(iteration=np.array(it), rho_v=np.array(st.rho_v), cg_iterations=np.array(self.cg_total),
-                    seconds=np.array(seconds), history=np.array(self.history).reshape(-1, 7),
-                    fingerprint=np.array(json.dumps(self.fingerprint)))
+                    seconds=np.array(seconds), history=np.array(self.history).reshape(-1, 7))
         if it > 0:
             data.update(penalties=np.array(self.last_penalties), cols=self.cols, pairs=self.pairs)
         change = self.change_test.state()
@@ -134,20 +116,7 @@ class PairsRun:
             data.update(change_snapshot=change["snapshot"].reshape(st.n, st.setup.nb, st.setup.W),
                         change=np.array([change["window_change"][0], change["change"][0]]),
                         excess=np.array(self.last_excess))
-        def write(tmp):
-            with open(tmp, "wb") as f:
-                np.savez(f, **data)
-
-        try:
-            write_atomic(self.checkpoint, write, "the checkpoint", size=self.checkpoint_size)
-            self.saved_at = it
-        except WriteError as exc:
-            if not self.save_failed:
-                kept = (f" (the checkpoint of iteration {self.saved_at} stays valid)" if self.saved_at is not None
-                        else "")
-                warnings.warn(f"{exc}; the run goes on without this checkpoint{kept}, and tries again at the next "
-                              "one", CheckpointWarning, stacklevel=2)
-            self.save_failed = True
+        self.checkpoint.save(data, it)
 
     def _elapsed(self):
         return self.seconds_before + time.perf_counter() - self.t0
@@ -158,11 +127,11 @@ class PairsRun:
         penalties and the X-step's right-hand side (with the sums of the dual residual)."""
         if self.checkpoint is not None and it > self.start and (
                 interrupt.requested() or it == self.max_iterations
-                or time.perf_counter() - self.last_save >= self.checkpoint_seconds):
+                or time.perf_counter() - self.last_save >= self.checkpoint.seconds):
             self.save(it, self._elapsed())
             self.last_save = time.perf_counter()
         rho = self.schedule.rho(it)
-        self.state.set_penalties(rho, self.settings.rho2_factor * rho * rho / (self.state.L * self.state.A))
+        self.state.set_penalties(rho, self.options.rho2_factor * rho * rho / (self.state.L * self.state.A))
         self.s2, self.dy2 = self.state.right_hand_side()
 
     def status(self, it):
@@ -170,7 +139,7 @@ class PairsRun:
         change test; history and the callback. True when all hold (the final checkpoint is written)."""
         if it == 0:
             return False
-        st, tol, w = self.state, self.settings, self.state.column_area
+        st, tol, w = self.state, self.options, self.state.column_area
         n, m, A = st.n, st.m, st.A
         rho_old, rho2_old = self.last_penalties
         cols, pairs = self.cols, self.pairs
@@ -202,14 +171,14 @@ class PairsRun:
 
     def tests(self):
         """The stopping rule's parts at the last test, as :class:`~warp_regdist.solvers.progress.StopTest`."""
-        tol = self.settings
+        tol = self.options
         return (StopTest("max residual/tolerance", float(np.max(self.res / np.maximum(self.eps, 1e-300))), 1.0),
                 StopTest("change to come", float(self.change_test.change[0]), tol.eps_change),
                 StopTest("gradient excess", float(self.last_excess), tol.eps_excess))
 
     def advance(self, it, count):
         """Iterations it .. it + count - 1: X-step (PCG) and z/y-step, U/H-step; then the top of the next."""
-        st, tol = self.state, self.settings
+        st, tol = self.state, self.options
         for j in range(it, it + count):
             atol = cg_tolerance(tol.cg_fraction, np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
             self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
@@ -228,11 +197,11 @@ class PairsRun:
         self.res, self.eps = np.zeros(7), np.ones(7)
         with interrupt.catch_interrupt():
             self.top(self.start)
-            it, reason = run_iterations(self, self.start, self.max_iterations)
+            it, reason = run_iterations(self, self.start, self.max_iterations, poll=check_workers)
         converged, interrupted = reason == CONVERGED, reason == INTERRUPTED
         res, eps, st = self.res, self.eps, self.state
         if not converged and not interrupted:
-            tol = self.settings
+            tol = self.options
             warnings.warn(f"all-pairs ADMM did not converge in {self.max_iterations} iterations "
                           f"(max residual / tolerance {np.max(res / np.maximum(eps, 1e-300)):.3g}, change to come "
                           f"{self.change_test.change[0]:.3g} / eps_change {tol.eps_change:.3g}, gradient excess "
@@ -242,5 +211,5 @@ class PairsRun:
                               **_estimate(float(self.change_test.change[0])),
                               cg_iterations=self.cg_total, seconds=self._elapsed(),
                               memory_bytes=self.memory,
-                              checkpoint=None if self.checkpoint is None else os.fspath(self.checkpoint),
-                              checkpoint_iteration=self.saved_at)
+                              checkpoint=None if self.checkpoint is None else self.checkpoint.path,
+                              checkpoint_iteration=None if self.checkpoint is None else self.checkpoint.saved_at)

@@ -1,13 +1,11 @@
 """The state of the symmetric all-pairs ADMM (:mod:`warp_regdist.solvers.all_pairs_admm`) and its steps,
-split among CPU processes: the memory it needs, the operators every part shares (``Setup``),
+split among CPU processes: the operators every part shares (``Setup``),
 one part's arrays, PCG and launches (``_Part``), and the whole state with its worker processes
 (``SymmetricADMM``)."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import os
 
 import numpy as np
 import scipy.sparse as sp
@@ -16,72 +14,12 @@ import warp as wp
 from ..kernels.all_pairs import all_pairs_kernels
 from ..kernels.element_core import DY2, G2, R2, S2, Z2
 from ..kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
-from ..geometry.operators import element_diameters
+from .device_mesh import DeviceMesh
 from .multigrid import smoothed_aggregation
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 
-__all__ = ["PairsSettings", "SymmetricADMM", "middle_matrix", "STATE_ROWS", "memory_estimate", "check_memory", "available_memory"]
-
-
-@dataclasses.dataclass(frozen=True)
-class PairsSettings:
-    """The settings of one all-pairs run, read once from ``tolerances`` and the call's arguments
-    and passed explicitly (the worker processes get them with the setup).
-
-    eps_abs, eps_rel, eps_rel_consensus, eps_rel_dual: the residual tests' absolute and relative
-    tolerances; eps_change, change_window: the extrapolated change test; eps_excess: the test of U's
-    steepness beyond the constraint (stopping.gradient_excess); rho2_factor: the
-    consensus penalty rho2 = rho2_factor rho^2 / (L A); relaxation: the over-relaxation of all
-    three steps; cg_fraction, cg_rtol, cg_max_iterations: the X-step's PCG; penalty_mid: the
-    geometric mean of the penalty schedule's range, in units of L (the multigrid's target).
-    """
-
-    eps_abs: float
-    eps_rel: float
-    eps_rel_consensus: float
-    eps_rel_dual: float
-    eps_change: float
-    change_window: int
-    eps_excess: float
-    rho2_factor: float
-    relaxation: float
-    cg_fraction: float
-    cg_rtol: float
-    cg_max_iterations: int
-    penalty_mid: float
-
-
-def available_memory(device):
-    """Bytes available on the device (MemAvailable of /proc/meminfo for the CPU)."""
-    if device.is_cuda:
-        return int(device.free_memory)
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
-
-
-def memory_estimate(n, m, dtype="float64", device="cpu"):
-    """Bytes needed by :func:`all_pairs` for n vertices and m triangles.
-
-    Device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
-    the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4) and mask (1), the multigrid
-    levels (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
-    host the float64 (n, n) result, and in the solver's precision the U of the last change test
-    and the change test's difference (and, on a GPU, the copy of one state array at a time to
-    the host; checkpoints write the state from views, not copies, on the CPU).
-    """
-    W = lane_width(SCALARS[dtype], n)
-    cols = -(-n // W) * W
-    size = np.dtype(dtype).itemsize
-    device_bytes = size * cols * (13 * n + 3 * m)
-    host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
-    return device_bytes, host_bytes
+__all__ = ["SymmetricADMM", "middle_matrix", "STATE_ROWS"]
 
 
 def middle_matrix(ops, rho2_factor, penalty_mid):
@@ -99,26 +37,26 @@ def _even_splits(weights, parts):
 
 
 class _Setup:
-    """Host data that every part of the iteration needs (pickled to the worker processes); ``hierarchy``:
-    the multigrid hierarchy of ``K_mid`` when the caller has it (built here otherwise)."""
+    """Host data that every part of the iteration needs (pickled to the worker processes): the
+    operators ``ops``, the X-step matrix at the penalty ``penalty_mid`` (units of L) and its multigrid
+    ``hierarchy`` when the caller has it (built here otherwise), the split into ``parts``."""
 
-    def __init__(self, mesh, ops, alpha_hat, dtype, settings, parts, hierarchy=None):
-        self.n, self.m = mesh.n_vertices, mesh.n_elements
+    def __init__(self, ops, alpha_hat, dtype, options, penalty_mid, parts, hierarchy=None):
+        self.operators = ops
+        self.n, self.m = ops.vertex_volumes.size, ops.element_volumes.size
         self.dtype = dtype
-        self.elements = mesh.elements.astype(np.int32)
-        self.basis, self.volumes, self.vertex_volumes = ops.basis, ops.element_volumes, ops.vertex_volumes
-        self.diameters = element_diameters(mesh.vertices, mesh.elements)
+        self.vertex_volumes = ops.vertex_volumes
         self.divergence = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()  # D = G^T M_F
         self.stiffness = ops.stiffness.tocsr()
         self.A, self.L = ops.total_volume, ops.length_scale
         self.alpha = alpha_hat * ops.length_scale
         self.W = lane_width(SCALARS[dtype], self.n)
         self.nb = -(-self.n // self.W)
-        self.relaxation = settings.relaxation
+        self.relaxation = options.relaxation
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
-        # (fewer CG iterations on cat than at either end); the mass term keeps the constants, which
+        # (fewer CG iterations than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
-        self.K_mid = middle_matrix(ops, settings.rho2_factor, settings.penalty_mid)
+        self.K_mid = middle_matrix(ops, options.rho2_factor, penalty_mid)
         self.hierarchy = smoothed_aggregation(self.K_mid) if hierarchy is None else hierarchy
         self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
         self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
@@ -202,14 +140,9 @@ class _Part:
 
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes
-        self._arrays = dict(
-            elements=wp.array(setup.elements, dtype=wp.int32, device=dev),
-            basis=wp.array(setup.basis, dtype=wp.types.vector(3, sc), device=dev),
-            volumes=wp.array(setup.volumes, dtype=sc, device=dev),
-            diameters=wp.array(setup.diameters, dtype=sc, device=dev),
-            vertex_volumes=wp.array(setup.vertex_volumes, dtype=sc, device=dev),
-            lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
-            mask=_free_entries(n, b0, b1, W, V, dev))
+        self.mesh = mesh = DeviceMesh(setup.operators, sc, dev)
+        self._arrays = dict(lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
+                            mask=_free_entries(n, b0, b1, W, V, dev))
         a = self._arrays
         self.mask = _lane_view(a["mask"], sc, W, width)
         self.X, self.rhs = view("X", slice(None)), view("rhs", slice(None))
@@ -217,16 +150,16 @@ class _Part:
         self.pcg = BatchedPCG(setup.K_mid, sc, width, lanes, dev, preconditioner=setup.hierarchy, capture=dev.is_cpu)
         span = thread_span(dev, lanes, nb * W // width, n)
         self.vertex = wp.launch(lane_step.vertex_step, row_dim(n, span, lanes), device=dev, record_cmd=True,
-                                inputs=[a["vertex_volumes"], self.mask, sc(1.0), sc(1.0)]
+                                inputs=[mesh.vertex_volumes, self.mask, sc(1.0), sc(1.0)]
                                 + [view(name, slice(None)) for name in ("H", "U", "DZ_acc", "DY_acc", "DZ", "rhs", "acc")]
                                 + [*span, n])
         span = thread_span(dev, lanes, nb * W // width, m)
         self.element = wp.launch(lane_step.element_step, row_dim(m, span, lanes), device=dev, record_cmd=True,
-                                 inputs=[a["elements"], a["basis"], a["volumes"], self.X, view("v", slice(None), slice(None)),
+                                 inputs=[mesh.elements, mesh.basis, mesh.volumes, self.X, view("v", slice(None), slice(None)),
                                          sc(1.0), sc(1.0), sc(setup.relaxation), view("DZ_acc", slice(None)),
                                          view("DY_acc", slice(None)), view("acc", slice(None)), *span, m])
         self.steep = wp.launch(lane_step.steepness, row_dim(m, span, lanes), device=dev, record_cmd=True,
-                               inputs=[a["elements"], a["basis"], a["diameters"], view("U", slice(None)), view("steep"),
+                               inputs=[mesh.elements, mesh.basis, mesh.diameters, view("U", slice(None)), view("steep"),
                                        *span, m])
         self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
             arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
@@ -268,13 +201,14 @@ class SymmetricADMM:
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
-    def __init__(self, mesh, ops, alpha_hat, device, dtype, settings, workers, auto_workers=False, hierarchy=None):
-        n = mesh.n_vertices
+    def __init__(self, ops, alpha_hat, device, dtype, options, penalty_mid, workers, auto_workers=False,
+                 hierarchy=None):
+        n = ops.vertex_volumes.size
         nb = -(-n // lane_width(SCALARS[dtype], n))
         parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
         if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
             parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(mesh, ops, alpha_hat, dtype, settings, parts, hierarchy)
+        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, penalty_mid, parts, hierarchy)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:n] = setup.vertex_volumes
@@ -378,21 +312,3 @@ class SymmetricADMM:
         values[j, j // self.setup.W, j % self.setup.W] = 0
         if not self.arrays[name].device.is_cpu:
             self.put(name, values)
-
-
-def check_memory(n, m, dtype, dev):
-    """The footprint (bytes) of an all-pairs run; ValueError when it exceeds the available memory."""
-    device_bytes, host_bytes = memory_estimate(n, m, dtype, dev)
-    if dev.is_cuda:
-        cpu_available = available_memory(wp.get_device("cpu"))
-        if device_bytes > available_memory(dev) or host_bytes > cpu_available:
-            raise ValueError(f"expected enough memory for {n} vertices in {dtype}: needs {device_bytes / 1e9:.2f} GB "
-                             f"on {dev} and {host_bytes / 1e9:.2f} GB on the host, got {available_memory(dev) / 1e9:.2f} "
-                             f"GB and {cpu_available / 1e9:.2f} GB available")
-    else:
-        available = available_memory(dev)
-        if device_bytes + host_bytes > available:
-            raise ValueError(f"expected enough memory for {n} vertices in {dtype}: needs "
-                             f"{(device_bytes + host_bytes) / 1e9:.2f} GB, got {available / 1e9:.2f} GB available"
-                             + (" (float32 halves it)" if dtype == "float64" else ""))
-    return device_bytes + host_bytes

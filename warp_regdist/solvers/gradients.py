@@ -7,7 +7,7 @@ The derivative is that of the smoothed problem
 
 (m elements, A their total volume) whose minimizer u_mu is a smooth function of the vertex
 positions and alpha_hat and tends to the ADMM's minimizer as mu_hat -> 0
-(``tolerances.gradient_smoothing``). Its stationarity grad_u F(u_mu; x, alpha_hat) = 0 gives, for a
+(the solver's ``options.gradient_smoothing``). Its stationarity grad_u F(u_mu; x, alpha_hat) = 0 gives, for a
 loss gradient b = dL/du (free vertices), the adjoint H w = b (H = grad_u^2 F at u_mu, symmetric
 positive definite) and
 
@@ -39,7 +39,6 @@ from scipy.optimize import OptimizeResult
 
 from ..errors import ConvergenceWarning
 from ..kernels import adjoint
-from ..tolerances import tolerances
 
 __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
            "vector_jacobian_product"]
@@ -67,7 +66,7 @@ class Gradients(OptimizeResult):
         max |u_mu - distance| / max distance over the columns: how far the smoothed minimizer is
         from the returned distance (the ADMM's error plus the smoothing's).
     smoothing : float
-        The largest mu_hat used over the columns: ``tolerances.gradient_smoothing``, or a larger one
+        The largest mu_hat used over the columns: the solver's ``options.gradient_smoothing``, or a larger one
         where Newton's method stalled at it (with a ConvergenceWarning).
     newton_iterations : int
         Newton steps summed over columns.
@@ -225,13 +224,12 @@ class SmoothedSolution(NamedTuple):
     change: float
 
 
-def smoothed_solution(solver, distance, sources, column=0):
+def smoothed_solution(solver, distance, sources, column=0, mu_hat=None):
     """The :class:`SmoothedSolution` of ``solver``'s problem from vertex ``sources``, by Newton's method
-    from ``distance`` (n,), a converged solve's (``column`` names the source set in errors)."""
-    mu_hat = float(tolerances.gradient_smoothing)
-    if not 0.0 < mu_hat < np.inf:
-        raise ValueError(f"expected tolerances.gradient_smoothing as a finite number > 0, got {mu_hat!r}")
-    sources, reachable = solver._source_mask(sources, column)
+    from ``distance`` (n,), a converged solve's (``column`` names the source set in errors), at the
+    barrier weight ``mu_hat`` (None: the solver's ``options.gradient_smoothing``)."""
+    mu_hat = float(solver.options.gradient_smoothing if mu_hat is None else mu_hat)
+    sources, reachable = solver.source_mask(sources, column)
     free = reachable.copy()
     free[sources] = False
     v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
@@ -258,15 +256,16 @@ def adjoint_gradients(solver, solution, b):
     return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
 
 
-def vector_jacobian_product(solver, distance, source_sets, grad_u):
+def vector_jacobian_product(solver, distance, source_sets, grad_u, mu_hat=None):
     """The :class:`Gradients` of sum(grad_u * distance) (module docstring) for the columns of a
-    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k)."""
+    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k); the
+    smoothing ``mu_hat`` as in :func:`smoothed_solution`."""
     t0 = time.perf_counter()
     n, k = distance.shape
     vertices, alpha_hat, steps, change, smoothing = np.zeros((n, 3)), 0.0, 0, 0.0, 0.0
     smoothed = np.zeros((n, k))
     for j in range(k):
-        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j)
+        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j, mu_hat)
         dx, da = adjoint_gradients(solver, solution, grad_u[:, j])
         vertices += dx
         alpha_hat += da

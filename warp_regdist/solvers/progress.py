@@ -37,6 +37,8 @@ class Progress:
         iterations, and keep their last value in between).
     memory_bytes : int
         The solve's estimated footprint (0 where not estimated).
+    columns, columns_done : int
+        Columns of a batch and how many of them have stopped (the tests are those of the others).
     """
 
     iteration: int
@@ -44,6 +46,8 @@ class Progress:
     tests: tuple
     checked: bool = True
     memory_bytes: int = 0
+    columns: int = 1
+    columns_done: int = 0
 
     @property
     def converged(self):
@@ -58,7 +62,9 @@ class Progress:
             mark = "" if t.holds else " (holding it back)"
             parts.append(f"{t.name} {_number(t.value)}/{_number(t.threshold)}{mark}")
         memory = f", {self.memory_bytes / 1e9:.2f} GB" if self.memory_bytes else ""
-        return f"iteration {self.iteration}: {', '.join(parts)} (value/threshold); {self.seconds:.1f} s{memory}"
+        batch = f"{self.columns_done}/{self.columns} columns done, " if self.columns > 1 else ""
+        return (f"iteration {self.iteration}: {batch}{', '.join(parts)} (value/threshold); {self.seconds:.1f} s"
+                f"{memory}")
 
 
 def _number(x):

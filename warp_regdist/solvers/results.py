@@ -27,10 +27,9 @@ class DistanceResult(OptimizeResult):
     error_estimate : float or (k,) ndarray
         The change of u still to come, in units of max u, if every vertex kept converging at its
         own rate of the last two change tests (10 iterations apart), that rate capped at 0.95 per
-        test (``tolerances.eps_estimate``; docs/method.md section 8). The solve runs until it is
-        at most 0.5%. An estimate, not a bound: against the exact minimizers of 51 cases the
-        true error was 0.06-3.1 times it, and within 0.42% of max u in every case
-        (docs/architecture.md, stopping rule). :meth:`polish` measures the error instead.
+        test (docs/method.md section 8). The solve runs until it is at most the options'
+        ``eps_estimate`` (0.5%). An estimate, not a bound (docs/design/stopping.md compares it with
+        the true error); :meth:`polish` measures the error instead.
     cg_iterations : int
         PCG iterations summed over ADMM iterations (shared by all columns of a batch).
     seconds : float
@@ -60,14 +59,15 @@ class DistanceResult(OptimizeResult):
         The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
-    def _attach(self, solver, source_sets):
-        """Keep the solver and the vertex source sets for :meth:`vjp` (an attribute, not a key)."""
-        object.__setattr__(self, "_problem", (solver, source_sets))
+    def _attach(self, solver, source_sets, options=None):
+        """Keep the solver, the vertex source sets and the options of the solve for :meth:`vjp` (an
+        attribute, not a key)."""
+        object.__setattr__(self, "_problem", (solver, source_sets, options))
 
     def _smoothable(self, verb):
         """(solver, source sets, distance (n, k), one column?) after the checks that :meth:`vjp` and
         :meth:`polish` share (``verb`` names the operation in their messages)."""
-        solver, source_sets = vars(self).get("_problem", (None, None))
+        solver, source_sets, options = vars(self).get("_problem", (None, None, None))
         if solver is None:
             raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertex sources to "
                              f"{verb}, got one from points or curves (or a copy)")
@@ -80,14 +80,15 @@ class DistanceResult(OptimizeResult):
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
         distance = np.asarray(self.distance)
         one = distance.ndim == 1
-        return solver, source_sets, distance[:, None] if one else distance, one
+        mu_hat = (solver.options if options is None else options).gradient_smoothing
+        return solver, source_sets, distance[:, None] if one else distance, one, mu_hat
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
         ((n,) after :meth:`~warp_regdist.DistanceSolver.solve`, (n, k) after ``solve_many``;
         entries on sources and unreachable vertices are ignored) with respect to the vertex
         positions and alpha_hat, by implicit differentiation of the barrier-smoothed problem at
-        the solution (docs/method.md section 10, ``tolerances.gradient_smoothing``).
+        the solution (docs/method.md section 10, the solver's ``options.gradient_smoothing``).
 
         Returns a :class:`~warp_regdist.Gradients`: ``vertices`` (n, 3) dL/dx,
         ``alpha_hat`` dL/dalpha_hat, ``smoothed_distance`` (the minimizer whose derivative it is)
@@ -95,7 +96,7 @@ class DistanceResult(OptimizeResult):
         """
         from .gradients import vector_jacobian_product
 
-        solver, source_sets, distance, one = self._smoothable("differentiate")
+        solver, source_sets, distance, one, mu_hat = self._smoothable("differentiate")
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
         except (TypeError, ValueError):
@@ -107,7 +108,7 @@ class DistanceResult(OptimizeResult):
             raise ValueError(f"expected grad_u of shape {shape} (the distance's), got {grad.shape}")
         if not np.all(np.isfinite(grad)):
             raise ValueError("expected finite grad_u, got NaN or inf")
-        out = vector_jacobian_product(solver, distance, source_sets, grad[:, None] if one else grad)
+        out = vector_jacobian_product(solver, distance, source_sets, grad[:, None] if one else grad, mu_hat)
         if one:
             out["smoothed_distance"] = out.smoothed_distance[:, 0]
         return out
@@ -124,11 +125,12 @@ class DistanceResult(OptimizeResult):
         from .gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        solver, source_sets, distance, one = self._smoothable("polish")
+        solver, source_sets, distance, one, mu_hat = self._smoothable("polish")
         out = DistanceResult(self)
-        out._attach(solver, source_sets)
+        out._attach(*vars(self)["_problem"])
         del out["error_estimate"]
-        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j) for j in range(distance.shape[1])]
+        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j, mu_hat)
+                     for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])
         out["distance"], out["polish_change"] = (polished[:, 0], change[0].item()) if one else (polished, change)

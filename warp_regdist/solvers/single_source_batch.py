@@ -1,6 +1,6 @@
 """One batched single-source ADMM on the device (Algorithm 1; docs/method.md sections 4 and 8):
 its arrays (:class:`Workspace`), the stopping rule's constants the device test reads
-(:class:`DeviceRule`), the iteration as recorded launches replayed as one Warp graph
+(:func:`device_rule`), the iteration as recorded launches replayed as one Warp graph
 (:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.solvers.admm.run_iterations`
 (:class:`BatchIterations`)."""
 
@@ -8,23 +8,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import time
 
 import numpy as np
 import warp as wp
 
 from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE, ESTIMATE_OUT, IT_OUT,
-                                     LANE_ROWS, LOAD_NORM, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
-                                     single_source_kernels)
+                                     LANE_ROWS, LOAD_NORM, MOVED, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT, UMAX,
+                                     rule_struct, single_source_kernels)
 from ..kernels.lanes import lane_kernels, row_dim, thread_span
+from .progress import Progress, StopTest
 from .stopping import ESTIMATE_RATE_CAP, tolerance
 
-__all__ = ["Workspace", "DeviceRule", "device_rule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
-
-CAPTURE = True
-"""On the CPU, replay each batch's iteration as one captured Warp graph (False: the same recorded
-launches one by one, the host reading the CG loop's flag; the same numbers)."""
+__all__ = ["Workspace", "device_rule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
 
 RHO_TABLE = 64
 """Entries of the device's penalty table rho_table (iteration it at it % RHO_TABLE; the host writes
@@ -59,41 +55,24 @@ class Workspace:
     y_out: wp.array | None = None
 
 
-@dataclasses.dataclass(frozen=True)
-class DeviceRule:
-    """The constants of the device's stopping test and CG tolerance rule (kernels/single_source.py
-    ``admm_check``), in the order of its arguments: r <= eps_pri_abs + eps_rel max(|G u|, |z|),
-    s <= eps_dual_abs + eps_rel_dual max(|D y|, |A_V|), the change test eps_change and the error
-    estimate's eps_estimate, the CG
-    tolerance min(cg_fraction dual scale, eps_dual / 10, cg_primal r (alpha + rho)) / (shift + scale rho),
-    the penalty reported in units of ``length``."""
-
-    eps_pri_abs: float
-    eps_rel: float
-    eps_rel_dual: float
-    eps_change: float
-    eps_estimate: float
-    cg_fraction: float
-    cg_primal: float
-    alpha: float
-    shift: float
-    scale: float
-    length: float
-
-
-def device_rule(solver, tol, free):
-    """The :class:`DeviceRule` of a batch of ``solver`` under ``tol`` and the initial per-lane rows
+def device_rule(ops, regularizer, element_dim, options, free):
+    """The constants of the device's stopping test and CG tolerance rule for a batch (a
+    ``device_rule_type`` struct, float64: the caller converts it) and the initial per-lane rows
     (LANE_ROWS, slots) of its test; ``free`` (n, slots) is 1 on each column's free vertices.
 
-    Per slot the dual test's floor eps_abs sqrt(n_free) A and load |mask A_V|: the dual residual
-    is measured against max(|mask D y|, |mask A_V|), since at the optimum A_V = alpha W u + D y on
-    the free vertices and y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat,
-    boundary sources on a coarse mesh, a smooth Hessian-regularized u), so |D y| alone can
-    vanish and a test relative to it never holds.
+    The test is r <= eps_pri_abs + eps_rel max(|G u|, |z|), s <= eps_dual_abs + eps_rel_dual
+    max(|D y|, |A_V|), the change test eps_change and the error estimate's eps_estimate; the CG
+    tolerance is min(cg_fraction dual scale, eps_dual / 10, cg_primal r (alpha + rho)) / (shift +
+    scale rho); the penalty is reported in units of ``length``. Per slot the dual test's floor
+    eps_abs sqrt(n_free) A and load |mask A_V|: the dual residual is measured against
+    max(|mask D y|, |mask A_V|), since at the optimum A_V = alpha W u + D y on the free vertices and
+    y = 0 where |G u| < 1, which can be everywhere (a large alpha_hat, boundary sources on a coarse
+    mesh, a smooth Hessian-regularized u), so |D y| alone can vanish and a test relative to it never
+    holds.
     """
-    ops, factor = solver.operators, solver.regularizer.tolerance_factor
-    L, A, m = ops.length_scale, ops.total_volume, solver.mesh.n_elements
-    eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (tol.eps_abs, tol.eps_rel, tol.eps_rel_dual))
+    factor = regularizer.tolerance_factor
+    L, A, m = ops.length_scale, ops.total_volume, ops.element_volumes.size
+    eps_abs, eps_rel, eps_rel_dual = (factor * t for t in (options.eps_abs, options.eps_rel, options.eps_rel_dual))
     eps_dual_abs = np.sqrt(np.maximum(free.sum(axis=0), 1.0)) * eps_abs * A
     load_norm = np.sqrt(np.square(ops.vertex_volumes) @ free)
     lane = np.zeros((LANE_ROWS, free.shape[1]))
@@ -101,16 +80,16 @@ def device_rule(solver, tol, free):
     lane[DUAL_SCALE], lane[EPS_DUAL] = eps_dual_abs + load_norm, tolerance(eps_dual_abs, eps_rel_dual, load_norm)
     lane[ESTIMATE] = np.inf
     # the u-step's right-hand side is divided by shift + scale rho: by alpha + rho for the rescaled Dirichlet matrix
-    shift, scale = (solver.alpha, 1.0) if solver._scaled else (1.0, 0.0)
-    rule = DeviceRule(
+    shift, scale = (regularizer.alpha, 1.0) if regularizer.rescaled else (1.0, 0.0)
+    values = dict(
         eps_pri_abs=math.sqrt(3 * m) * eps_abs * math.sqrt(A), eps_rel=eps_rel, eps_rel_dual=eps_rel_dual,
-        eps_change=factor * tol.eps_change, eps_estimate=factor * tol.eps_estimate,
-        cg_fraction=factor * tol.cg_fraction,
+        eps_change=factor * options.eps_change, eps_estimate=factor * options.eps_estimate,
+        cg_fraction=factor * options.cg_fraction,
         # the CG residual also below a fraction of r, in the units of the u-step's (alpha + rho) W_D u:
         # r ~ L^(d/2), W_D u ~ L^(d-1) for element dimension d
-        cg_primal=tol.cg_primal_fraction * L ** (0.5 * solver.mesh.element_dim - 1.0),
-        alpha=solver.alpha, shift=shift, scale=scale, length=L)
-    return rule, lane
+        cg_primal=options.cg_primal_fraction * L ** (0.5 * element_dim - 1.0),
+        alpha=regularizer.alpha, shift=shift, scale=scale, length=L)
+    return values, lane
 
 
 def collect(ws, frozen, slots, cols, out, y_out):
@@ -138,30 +117,31 @@ class BatchIterations:
     """One batched single-source ADMM as the problem of :func:`~warp_regdist.solvers.admm.run_iterations`.
 
     ``status`` reads the device's per-lane flags, collects the columns whose test first held
-    (frozen on the device at that iterate) and reports progress; ``advance`` compacts the batch
-    when columns left it, then runs iterations with the schedule's penalties (written one
-    iteration ahead into the device's table, which the device's test reads).
+    (frozen on the device at that iterate) and reports progress to ``callback``; ``advance`` compacts
+    the batch when columns left it, then runs iterations with the schedule's penalties (written one
+    iteration ahead into the device's table, which the device's test reads); ``regularizer``'s u-step
+    matrix is replaced in the PCG when rho changes (unless it is the rescaled W_D).
     """
 
-    def __init__(self, solver, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0):
-        n, m = solver.mesh.n_vertices, solver.mesh.n_elements
-        self.solver, self.ws, self.batch, self.slot_col = solver, ws, batch, slot_col
-        self.schedule, self.offset, self.verbose, self.t0 = schedule, offset, verbose, t0
+    def __init__(self, ws, batch, regularizer, slot_col, k, keep_duals, schedule, offset, callback, t0):
+        n, m = batch.mesh.n, batch.mesh.m
+        self.ws, self.batch, self.regularizer, self.slot_col = ws, batch, regularizer, slot_col
+        self.schedule, self.offset, self.callback, self.t0 = schedule, offset, callback, t0
+        self.on_cpu = batch.mesh.device.is_cpu
         self.iterations = np.full(k, -1)
         self.out = np.zeros((n, k))
         self.y_out = np.zeros((m, 3, k)) if keep_duals else None
         self.r_out, self.s_out, self.rho_out, self.estimate_out = np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k)
         self.compact_due = False
         self.system_rho = None
-        self.last_print = t0
-        self.rho_table = ws.rho_table.numpy() if solver.device.is_cpu else np.zeros(RHO_TABLE)
+        self.rho_table = ws.rho_table.numpy() if self.on_cpu else np.zeros(RHO_TABLE)
         self.penalty_ahead(0)
         batch.check()
 
     def penalty_ahead(self, it):
         """The penalty of iteration ``it`` into the device's table (read by that iteration's test)."""
         self.rho_table[it % RHO_TABLE] = self.schedule.rho(it + self.offset)
-        if not self.solver.device.is_cpu:
+        if not self.on_cpu:
             self.ws.rho_table.assign(self.rho_table)
 
     def status(self, it):
@@ -178,12 +158,19 @@ class BatchIterations:
             self.rho_out[cols], self.estimate_out[cols] = state[RHO_OUT, new], state[ESTIMATE_OUT, new]
             slot_col[new] = -1
         self.compact_due = new.size > 0
-        if self.verbose and (time.perf_counter() - self.last_print > 2.0):
-            self.last_print = time.perf_counter()
-            print(f"  ADMM iteration {it}: {np.count_nonzero(self.iterations >= 0)}/{self.iterations.size} converged, "
-                  f"max r/eps_pri {_max_ratio(state[R_LAST, :live], state[EPS_PRI, :live]):.3g}, max s/eps_dual "
-                  f"{_max_ratio(state[S_LAST, :live], state[EPS_DUAL, :live]):.3g}, {self.last_print - self.t0:.1f} s",
-                  file=sys.stderr)
+        if self.callback is not None:
+            running = np.flatnonzero(slot_col[:live] >= 0)
+            rule = self.batch.rule_values
+            with np.errstate(divide="ignore", invalid="ignore"):
+                change = np.where(state[UMAX, running] > 0, state[MOVED, running] / state[UMAX, running], 0.0)
+            tests = (StopTest("max r/eps_pri", _max_ratio(state[R_LAST, running], state[EPS_PRI, running]), 1.0),
+                     StopTest("max s/eps_dual", _max_ratio(state[S_LAST, running], state[EPS_DUAL, running]), 1.0),
+                     StopTest("max change", float(np.max(change, initial=0.0)), rule["eps_change"]),
+                     StopTest("max error estimate", float(np.max(state[ESTIMATE, running], initial=0.0)),
+                              rule["eps_estimate"]))
+            self.callback(Progress(it, time.perf_counter() - self.t0, tests,
+                                   checked=it > 0 and it % self.batch.window == 0, columns=self.iterations.size,
+                                   columns_done=int(np.count_nonzero(self.iterations >= 0))))
         return bool(np.all(self.iterations >= 0))
 
     def advance(self, it, count):
@@ -191,19 +178,18 @@ class BatchIterations:
         if self.compact_due:
             self.batch.compact(self.slot_col)
             self.compact_due = False
-        sv = self.solver
         for j in range(it, it + count):
             rho = self.schedule.rho(j + self.offset)
-            if not sv._scaled and rho != self.system_rho:
+            if not self.regularizer.rescaled and rho != self.system_rho:
                 self.system_rho = rho
-                self.ws.pcg.set_matrix(sv.regularizer.system(rho))
+                self.ws.pcg.set_matrix(self.regularizer.system(rho))
             self.penalty_ahead(j + 1)
             self.batch.iterate()
 
 
 class ColumnBatch:
     """The ADMM iteration of one batch as recorded launches over its first ``blocks`` column blocks,
-    on the CPU captured as one Warp graph (the u-step's CG loop a ``wp.capture_while``).
+    on the CPU (``capture``) replayed as one Warp graph (the u-step's CG loop a ``wp.capture_while``).
 
     :meth:`iterate` runs iteration it: the u-step (right-hand side, PCG), the element step,
     it += 1, then the top of iteration it + 1: the divergences, the change test, the stopping
@@ -216,20 +202,20 @@ class ColumnBatch:
     iterations times the batch size.
     """
 
-    def __init__(self, solver, ws, W, nb, window, rule, relaxation):
-        self.solver, self.ws, self.W = solver, ws, W
-        self.window, self.rule, self.relaxation = window, rule, relaxation
-        self.kernels = single_source_kernels(solver.scalar, W, solver.mesh.elements.shape[1])
-        self.move = lane_kernels(solver.scalar, W).move_columns
-        self.capture = CAPTURE and solver.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
+    def __init__(self, mesh, ws, W, nb, window, rule, relaxation, capture):
+        self.mesh, self.ws, self.W = mesh, ws, W
+        self.window, self.relaxation, self.rule_values = window, relaxation, rule
+        self.rule = rule_struct(mesh.scalar, rule)
+        self.kernels = single_source_kernels(mesh.scalar, W, mesh.elements.shape[1])
+        self.move = lane_kernels(mesh.scalar, W).move_columns
+        self.capture = capture and mesh.device.is_cpu  # on CUDA the CG loop would need conditional graph nodes
         self._record(nb)
 
     def _record(self, blocks):
         """Record the launches over column blocks 0..blocks-1 (their arguments stay fixed for the
         whole solve: rho, the tolerances and the counters live in device arrays) and capture them."""
-        sv, ws, kern = self.solver, self.ws, self.kernels
-        n, m, sc = sv.mesh.n_vertices, sv.mesh.n_elements, sv.scalar
-        dev = sv.device
+        mesh, ws, kern = self.mesh, self.ws, self.kernels
+        n, m, sc, dev = mesh.n, mesh.m, mesh.scalar, mesh.device
         span = thread_span(dev, blocks, ws.u.shape[1])
         self.blocks = blocks
         pcg = ws.pcg
@@ -239,20 +225,20 @@ class ColumnBatch:
             return wp.launch(kernel, dim, device=dev, record_cmd=True, inputs=list(args))
 
         elem_dim, vert_dim = row_dim(m, span, blocks), row_dim(n, span, blocks)
-        rule = self.rule
-        self.u_step = rec(kern.u_rhs, vert_dim, sv._vertex_volumes, ws.mask, ws.Dy, ws.Dz, ws.rho,
-                          sc(rule.shift), sc(rule.scale), ws.rhs, *span, n)
+        values = self.rule_values
+        self.u_step = rec(kern.u_rhs, vert_dim, mesh.vertex_volumes, ws.mask, ws.Dy, ws.Dz, ws.rho,
+                          sc(values["shift"]), sc(values["scale"]), ws.rhs, *span, n)
         self.after_u = [
-            rec(kern.element_step, elem_dim, sv._elements, sv._basis, sv._volumes, ws.u, ws.rho,
+            rec(kern.element_step, elem_dim, mesh.elements, mesh.basis, mesh.volumes, ws.u, ws.rho,
                 sc(self.relaxation), ws.z, ws.y, ws.acc, *span, m),
             rec(kern.advance, 1, ws.step, pcg.counters)]
         self.top = [
-            rec(kern.vertex_divergence, vert_dim, sv._vertex_offsets, sv._incident, sv._pair_weights, ws.mask,
+            rec(kern.vertex_divergence, vert_dim, mesh.vertex_offsets, mesh.incident, mesh.pair_weights, ws.mask,
                 ws.y, ws.z, ws.Dy, ws.Dz, ws.acc, *span, n),
             rec(kern.change_measure, vert_dim, ws.u, ws.snapshot, ws.moved_last, ws.step, self.window,
                 sc(ESTIMATE_RATE_CAP), ws.lane, *span, n),
-            rec(kern.admm_check, blocks, ws.acc, ws.lane, ws.rho, ws.step, ws.rho_table, self.window,
-                *(sc(value) for value in dataclasses.astuple(rule)), pcg.atol2),
+            rec(kern.admm_check, blocks, ws.acc, ws.lane, ws.rho, ws.step, ws.rho_table, self.window, self.rule,
+                pcg.atol2),
             rec(kern.freeze_lanes, vert_dim, ws.lane, ws.u, ws.u_out, *span, n)]
         if ws.y_out is not None:
             y, y_out = (a.reshape((3 * m, a.shape[2])) for a in (ws.y, ws.y_out))
@@ -298,8 +284,8 @@ class ColumnBatch:
         src = running[running >= keep]
         dst = np.flatnonzero(slot_col[:keep] < 0)[:src.size]
         if src.size:
-            sv, ws = self.solver, self.ws
-            dev, span = sv.device, thread_span(sv.device)
+            ws, dev = self.ws, self.mesh.device
+            span = thread_span(dev)
             s_arr = wp.array(src.astype(np.int32), dtype=wp.int32, device=dev)
             d_arr = wp.array(dst.astype(np.int32), dtype=wp.int32, device=dev)
             nb = ws.u.shape[1]

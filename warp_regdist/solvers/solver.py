@@ -7,53 +7,43 @@ For each source set E the solver returns the minimizer of
 
 with the regularizer W = W_D (Dirichlet), W_V (vector-field alignment) or W_H (curved
 Hessian) and alpha = alpha_hat * A^(1/d) (A the total area, or volume for d = 3;
-A^(3/2) for the Hessian), so that alpha_hat is scale-invariant (warp_regdist/regularizers.py).
+A^(3/2) for the Hessian), so that alpha_hat is scale-invariant (geometry/regularizers.py).
 Many source sets are solved as batched ADMMs whose per-element, per-vertex and
 linear-solve steps are Warp kernels over (rows x columns). The u-step matrix is
 alpha W + rho W_D: for Dirichlet the rescaled (alpha + rho) W_D (only the right-hand side
 is divided by alpha + rho), otherwise its values are replaced in the PCG whenever rho changes;
-the multigrid preconditioner of W_D serves all three (on spot about 6.5 CG iterations per
-ADMM iteration for W_D, 5 for W_V, 17-35 for W_H, where a hierarchy built for
-alpha W_H + rho W_D saved < 25%).
+the multigrid preconditioner of W_D serves all three.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import sys
 import time
 import warnings
 
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
-from ..kernels.lanes import SCALARS, lane_type, lane_width
-from ..geometry.mesh import Mesh
-from .multigrid import Hierarchy, smoothed_aggregation
-from ..geometry.operators import build_operators
-from . import interrupt
-from .pcg import BatchedPCG
-from .processes import WorkerPool, processes_available, watch
-from .admm import INTERRUPTED, PenaltySchedule, check_schedule, run_iterations
 from ..arguments import check_weight, parse_device, parse_workers
 from ..errors import ConvergenceWarning
+from ..geometry.mesh import Mesh
+from ..geometry.operators import build_operators
 from ..geometry.regularizers import build_regularizer
-from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
-from ..tolerances import tolerances
+from ..kernels.lanes import SCALARS, lane_type, lane_width
+from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
+from ..options import SolverOptions
+from . import interrupt
+from .admm import INTERRUPTED, PenaltySchedule, run_iterations
+from .device_mesh import DeviceMesh
+from .multigrid import Hierarchy, smoothed_aggregation
+from .pcg import BatchedPCG
+from .processes import WorkerPool, check_workers, processes_available, watch
 from .results import DistanceResult
-from .sources import solve_surface_sources, vertex_sources
+from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
+from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
+from .stopping import steep_columns
 
 __all__ = ["DistanceSolver"]
-
-
-_CHECK_EVERY = {False: 1, True: 10}
-"""ADMM iterations between the host's reads of the per-lane test state, on the CPU and on CUDA
-(the device decides and freezes each column at its iteration; the host collects and compacts)."""
-
-_CPU_BLOCKS = 1
-"""Lane blocks (of W columns) that one CPU batch runs at once; more run one batch after another.
-A block's arrays then stay in the caches: 64 sources on spot in batches of 8 columns took 1.32 s,
-of 16 1.48 s, of 64 2.42 s (on a 10k-vertex sphere 2.06, 2.68, 4.75 s); 64 single solves 5.4 s."""
 
 _PROCESS_WORK = 100_000
 """Vertices x source sets from which solve_many starts worker processes by default (spot x 21)."""
@@ -93,11 +83,15 @@ class DistanceSolver:
     hierarchy : warp_regdist.solvers.multigrid.Hierarchy or None
         A multigrid hierarchy of this mesh's stiffness matrix W_D to reuse (e.g. a solver's
         ``hierarchy`` of the same mesh at another alpha_hat); None: built here.
+    options : SolverOptions or None
+        Stopping rule, penalty schedule, iteration cap and linear-solve settings (None: the
+        defaults); :meth:`solve` and :meth:`solve_many` override fields per call by keyword.
 
     Examples
     --------
     >>> solver = DistanceSolver(load_mesh("spot.off"), alpha_hat=0.05)
     >>> u = solver.solve([2272]).distance
+    >>> rough = solver.solve([2272], max_iterations=50)          # an options field, for this call
 
     Ctrl-C during :meth:`solve` or :meth:`solve_many` stops at the end of the current ADMM
     iteration and returns the current iterate (``interrupted=True``, unconverged columns
@@ -105,18 +99,21 @@ class DistanceSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64", workers=None, hierarchy=None):
+                 device=None, dtype="float64", workers=None, hierarchy=None, options=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
         if dtype not in SCALARS:
             raise ValueError(f"expected dtype 'float64' or 'float32', got {dtype!r}")
+        if options is not None and not isinstance(options, SolverOptions):
+            raise ValueError(f"expected options as a SolverOptions or None, got {type(options).__name__}")
+        self.options = SolverOptions() if options is None else options
         self._auto_workers = workers is None
         workers = parse_workers(workers)
         self.device = parse_device(device)
         self.workers = 1 if self.device.is_cuda or not processes_available() else workers
-        self._copy_arguments = dict(mesh=mesh, alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
-                                    vector_field=vector_field, dtype=dtype)
+        self._copy_arguments = dict(alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
+                                    vector_field=vector_field, dtype=dtype, options=self.options)
         self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
@@ -125,19 +122,7 @@ class DistanceSolver:
         self.operators = ops = build_operators(mesh)
         self.regularizer = build_regularizer(mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
-        self._labels = mesh.components()
-        sc, dev = self.scalar, self.device
-        T = mesh.elements
-        self._elements = wp.array(T.astype(np.int32), dtype=wp.int32, device=dev)
-        self._basis = wp.array(ops.basis, dtype=wp.types.vector(3, sc), device=dev)
-        self._volumes = wp.array(ops.element_volumes, dtype=sc, device=dev)
-        self._vertex_volumes = wp.array(ops.vertex_volumes, dtype=sc, device=dev)
-        off, inc, loc = ops.vertex_elements
-        self._vertex_offsets = wp.array(off.astype(np.int32), dtype=wp.int32, device=dev)
-        self._incident = wp.array(inc.astype(np.int32), dtype=wp.int32, device=dev)
-        self._pair_weights = wp.array(ops.element_volumes[inc, None] * ops.basis[inc, loc],
-                                      dtype=wp.types.vector(3, sc), device=dev)
-        self._scaled = self.regularizer.weights is None  # Dirichlet: u-step matrix (alpha + rho) W_D
+        self.device_mesh = DeviceMesh(ops, self.scalar, self.device)
         if hierarchy is None:
             hierarchy = smoothed_aggregation(ops.stiffness)
         elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != mesh.n_vertices:
@@ -147,9 +132,10 @@ class DistanceSolver:
         self._workspaces = {}
         self._refined = None   # (key, the DistanceSolver of the latest refined mesh of points and curves)
 
-    def _source_mask(self, sources, column):
-        """Validated sources -> (indices (s,), reachable (n,) bool)."""
-        return vertex_sources(sources, column, self.mesh.n_vertices, self._labels)
+    def source_mask(self, sources, column=0):
+        """Validated vertex ``sources`` of column ``column`` -> (indices (s,), reachable (n,) bool: the
+        vertices of the sources' connected components)."""
+        return vertex_sources(sources, column, self.mesh.n_vertices, self.mesh.components())
 
     # ------------------------------------------------------------------ public API
     def _initial_state(self, initial, k):
@@ -179,7 +165,8 @@ class DistanceSolver:
                              f"{penalty!r} and {np.count_nonzero(~np.isfinite(y))} non-finite duals")
         return u, y, np.broadcast_to(penalty, (k,))
 
-    def solve(self, sources=None, verbose=False, initial=None, schedule=None, points=None, curve=None, closed=False):
+    def solve(self, sources=None, verbose=False, initial=None, points=None, curve=None, closed=False, callback=None,
+              **options):
         """Distance from one source set; see :class:`DistanceResult`.
 
         ``sources``: vertex indices. ``points``: surface points [(face, (b0, b1, b2)), ...] (e.g. from
@@ -194,17 +181,19 @@ class DistanceSolver:
         solver's alpha_hat) to start from: its distance, duals and penalty. The answer is this
         problem's minimizer; only the iterations needed change.
 
-        ``schedule``: the penalty rho at ADMM iteration k, a :class:`~warp_regdist.PenaltySchedule`
-        or any object with ``rho(k)`` (absolute penalty, k = 0, 1, ...; float k after a warm
-        start) and ``offset_for(penalty)`` (the k at which it reaches a warm start's penalty rho);
-        picklable when worker processes share the batch. None: ``PenaltySchedule.single_source``
-        of ``tolerances`` (rho0, rho_max, rho_doubling, in units of sqrt(A)). The answer is the
-        same minimizer; the iterations needed change.
+        ``callback``: called at every test of the iterate (every iteration on the CPU, every 10 on
+        CUDA) as ``callback(progress)`` with a :class:`~warp_regdist.solvers.progress.Progress`;
+        ``verbose`` prints it on stderr every 2 s.
+
+        ``options``: fields of :class:`~warp_regdist.SolverOptions` for this call (``max_iterations=``,
+        ``eps_rel=``, ``schedule=``, ...); the answer is the same minimizer, the iterations and the
+        stop change.
         """
         def one(x):
             return None if x is None else [x]
 
-        res = self._solve_many(one(sources), verbose, initial, True, schedule, one(points), one(curve), closed)
+        res = self._solve_many(one(sources), verbose, initial, True, one(points), one(curve), closed, callback,
+                               self.options.replace(**options))
         for key in ("iterations", "converged", "primal_residual", "dual_residual", "penalty", "error_estimate"):
             res[key] = res[key][0].item()
         for key in ("distance", "refined_distance", "signed_distance", "refined_signed_distance"):
@@ -215,33 +204,41 @@ class DistanceSolver:
         res["duals"] = res["duals"][:, :, 0]
         return res
 
-    def solve_many(self, source_sets=None, verbose=False, initial=None, keep_duals=False, schedule=None,
-                   points=None, curves=None, closed=False):
-        """Distances from k source sets as batched ADMMs (on the CPU one lane block of up to 8
-        columns at a time, on CUDA all at once): ``distance`` is (n, k).
+    def solve_many(self, source_sets=None, verbose=False, initial=None, keep_duals=False, points=None, curves=None,
+                   closed=False, callback=None, **options):
+        """Distances from k source sets as batched ADMMs (on the CPU ``cpu_blocks`` lane blocks of up to 8
+        (float64) or 16 (float32) columns at a time, on CUDA all at once): ``distance`` is (n, k).
 
         ``points``, ``curves``: k lists of surface points, k curves (see :meth:`solve`), one per
         column, alone or with k ``source_sets``; all columns share one refined mesh (so a column
         differs from its own solve where another column's point refines the mesh near its sources).
         ``initial``: a result with k columns to start from (see :meth:`solve`); ``keep_duals``:
-        return ``duals`` (m, 3, k) too, which makes the result a full warm start; ``schedule``:
-        the penalty schedule of every column (see :meth:`solve`).
+        return ``duals`` (m, 3, k) too, which makes the result a full warm start; ``callback``,
+        ``verbose``, ``options``: as in :meth:`solve` (the callback sees this process's part of the
+        batch).
         """
-        return self._solve_many(source_sets, verbose, initial, keep_duals, schedule, points, curves, closed)
+        return self._solve_many(source_sets, verbose, initial, keep_duals, points, curves, closed, callback,
+                                self.options.replace(**options))
 
-    def _solve_many(self, source_sets, verbose, initial=None, keep_duals=False, schedule=None, points=None,
-                    curves=None, closed=False):
+    def _solve_many(self, source_sets, verbose, initial, keep_duals, points, curves, closed, callback, options):
         """The work of :meth:`solve_many`; its warnings name the caller of solve / solve_many."""
+        if callback is not None and not callable(callback):
+            raise ValueError(f"expected callback as a callable or None, got {callback!r}")
+        if verbose:
+            callback = _printer(callback)
         if points is not None or curves is not None or closed:
-            return solve_surface_sources(self, source_sets, points, curves, closed, verbose, initial, keep_duals,
-                                         schedule)
+            k = check_surface_batch(source_sets, points, curves, closed, initial)
+            sets = None if source_sets is None else [self.source_mask(s, j)[0] for j, s in enumerate(source_sets)]
+            S = surface_sources(self.mesh, k, sets, points, curves, closed)
+            res = self._refined_solver(S)._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None,
+                                                      None, False, callback, options)
+            res._attach(None, None)   # no vjp: the refined mesh's new vertices move with the points
+            return refined_result(res, S, self.mesh.n_vertices, closed)
         if source_sets is None:
             raise ValueError("expected sources, points or a curve, got none")
         if isinstance(source_sets, (str, bytes)) or not hasattr(source_sets, "__iter__"):
             raise ValueError(f"expected a list of source sets, got {source_sets!r}")
-        if schedule is not None:
-            check_schedule(schedule)
-        sets = [self._source_mask(s, j) for j, s in enumerate(source_sets)]
+        sets = [self.source_mask(s, j) for j, s in enumerate(source_sets)]
         if not sets:
             raise ValueError("expected at least one source set, got none")
         start = self._initial_state(initial, len(sets))
@@ -260,14 +257,13 @@ class DistanceSolver:
                   for a, b in zip(bounds[:-1], bounds[1:])]
         with interrupt.catch_interrupt():
             if len(groups) == 1:
-                parts = self._admm_blocks(groups[0], W, verbose, starts[0], keep_duals, schedule)
+                parts = self._admm_blocks(groups[0], W, options, starts[0], keep_duals, callback)
             else:
                 pool = self._worker_pool(len(groups) - 1)
-                settings = dataclasses.replace(tolerances)  # a copy: the workers run under this call's settings
-                pool.start("solve", [(g, W, settings, st, keep_duals, schedule) for g, st in zip(groups[1:], starts[1:])])
+                pool.start("solve", [(g, W, options, st, keep_duals) for g, st in zip(groups[1:], starts[1:])])
                 try:
                     with watch(pool):
-                        mine = self._admm_blocks(groups[0], W, verbose, starts[0], keep_duals, schedule)
+                        mine = self._admm_blocks(groups[0], W, options, starts[0], keep_duals, callback, check_workers)
                 finally:
                     others = pool.finish()
                 parts = mine + [part for parts_of_worker in others for part in parts_of_worker]
@@ -276,18 +272,31 @@ class DistanceSolver:
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
-        res._attach(self, source_sets)
-        gradient = self.operators.max_gradient(res.distance)
-        steep = ~(gradient <= tolerances.max_gradient)  # also NaN
+        res._attach(self, source_sets, options)
+        steep, gradient = steep_columns(self.operators, res.distance, options.max_gradient)
         res.converged &= ~steep
         if steep.any():
             warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
                           f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
-            warnings.warn(f"ADMM did not converge in {tolerances.max_iterations} iterations for "
-                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning, stacklevel=3)
+            warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
+                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
+                          stacklevel=3)
         return res
+
+    def _refined_solver(self, S):
+        """A solver of the same settings on the refined mesh of ``S``, kept for the next call with the same
+        refined mesh."""
+        if self._refined is None or self._refined[0] != S.key:
+            if self._refined is not None:
+                self._refined[1].close()
+            args = dict(self._copy_arguments)
+            if args["vector_field"] is not None:
+                args["vector_field"] = np.asarray(args["vector_field"])[S.refinement.parent]
+            self._refined = (S.key, DistanceSolver(S.refinement.mesh, device=self.device,
+                                                   workers=None if self._auto_workers else self.workers, **args))
+        return self._refined[1]
 
     # ------------------------------------------------------------------ ADMM
     def _worker_pool(self, count):
@@ -295,8 +304,8 @@ class DistanceSolver:
         :meth:`close`; a pool with a dead worker is replaced)."""
         if self._pool is None or len(self._pool) < count or not self._pool.alive():
             self.close()
-            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, hierarchy=self.hierarchy),), count,
-                                    first_index=1)
+            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, mesh=self.mesh, hierarchy=self.hierarchy),),
+                                    count, first_index=1)
         return self._pool
 
     def close(self):
@@ -331,35 +340,33 @@ class DistanceSolver:
                 snapshot=vertexwise[5], moved_last=vertexwise[6], u_out=vertexwise[7],
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
                 rho_table=wp.zeros(RHO_TABLE, dtype=self.scalar, device=dev),
-                pcg=BatchedPCG(self.operators.stiffness if self._scaled else self.regularizer.system(0.0),
+                pcg=BatchedPCG(self.operators.stiffness if self.regularizer.rescaled else self.regularizer.system(0.0),
                                self.scalar, W, nb, dev, preconditioner=self.hierarchy),
             )
             self._workspaces[key] = ws
         return self._workspaces[key]
 
-    def _admm_blocks(self, sets, W, verbose, start=None, keep_duals=False, schedule=None, tol=None):
+    def _admm_blocks(self, sets, W, options, start=None, keep_duals=False, callback=None, poll=None):
         """:meth:`_admm` of ``sets`` in lane blocks of W columns: all at once on CUDA, on the CPU
-        ``_CPU_BLOCKS`` at a time, one batch after another; returns the batches' results."""
-        step = len(sets) if self.device.is_cuda else W * _CPU_BLOCKS
+        ``options.cpu_blocks`` at a time, one batch after another; returns the batches' results."""
+        step = len(sets) if self.device.is_cuda else W * options.cpu_blocks
         parts = []
         for a in range(0, len(sets), step):
             part = sets[a:a + step]
             begun = None if start is None else tuple(None if x is None else x[..., a:a + len(part)] for x in start)
-            parts.append(self._admm(part, self._workspace(W, -(-len(part) // W)), verbose, begun, keep_duals,
-                                    schedule, tol))
+            parts.append(self._admm(part, self._workspace(W, -(-len(part) // W)), options, begun, keep_duals,
+                                    callback, poll))
         return parts
 
-    def _admm(self, sets, ws, verbose, start=None, keep_duals=False, schedule=None, tol=None):
+    def _admm(self, sets, ws, options, start=None, keep_duals=False, callback=None, poll=None):
         """One batched ADMM over ``sets`` in the workspace ``ws`` (its lane width and blocks), from
-        zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), with the
-        penalty ``schedule`` (None: :meth:`PenaltySchedule.single_source` of ``tolerances``).
+        zero or from ``start`` = (u (n, k), y (m, 3, k) or None, penalty (k,) or None), under ``options``.
 
         The stopping test, the penalty and the CG tolerances are decided on the device (kernels/single_source.py);
-        the host reads the per-lane flags every ``_CHECK_EVERY`` iterations to collect the columns done
-        (frozen on the device at the iteration their test held) and to compact the batch.
+        the host reads the per-lane flags every ``options.check_every`` iterations to collect the columns
+        done (frozen on the device at the iteration their test held) and to compact the batch.
         """
         t0 = time.perf_counter()
-        tol = tolerances if tol is None else tol
         k = len(sets)
         n = self.mesh.n_vertices
         nb = ws.u.shape[1]
@@ -377,8 +384,7 @@ class DistanceSolver:
         for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "step"):
             getattr(ws, name).zero_()
         L = self.operators.length_scale
-        if schedule is None:
-            schedule = PenaltySchedule.single_source(tol, self.regularizer.rho_factors, L)
+        schedule = PenaltySchedule.of(options, L, self.regularizer.rho_factors)
         # iteration it runs with rho = schedule.rho(it + offset); a warm start continues the
         # schedule from the penalty it carries. The change test compares with u0 (zero or the start's).
         offset = 0.0
@@ -394,12 +400,14 @@ class DistanceSolver:
         if keep_duals and ws.y_out is None:
             ws.y_out = wp.zeros_like(ws.y)
 
-        rule, lane = device_rule(self, tol, free)
+        rule, lane = device_rule(self.operators, self.regularizer, self.mesh.element_dim, options, free)
         ws.lane.assign(lane.reshape(LANE_ROWS, nb, W))
-        ws.pcg.configure(tol.cg_rtol, tol.cg_max_iterations)
-        batch = ColumnBatch(self, ws, W, nb, tol.change_window, rule, tol.relaxation)
-        run = BatchIterations(self, ws, batch, slot_col, k, keep_duals, schedule, offset, verbose, t0)
-        it, reason = run_iterations(run, 0, tol.max_iterations, _CHECK_EVERY[self.device.is_cuda])
+        ws.pcg.configure(options.cg_rtol, options.cg_max_iterations)
+        batch = ColumnBatch(self.device_mesh, ws, W, nb, options.change_window, rule, options.relaxation,
+                            options.capture)
+        run = BatchIterations(ws, batch, self.regularizer, slot_col, k, keep_duals, schedule, offset, callback, t0)
+        check_every = options.check_every or (10 if self.device.is_cuda else 1)
+        it, reason = run_iterations(run, 0, options.max_iterations, check_every, poll)
         iterations, out, y_out, r_out, s_out, rho_out, estimate = (run.iterations, run.out, run.y_out, run.r_out,
                                                                     run.s_out, run.rho_out, run.estimate_out)
         state = ws.lane.numpy().reshape(LANE_ROWS, -1)  # the last iterate's, tested or not (Ctrl-C)
@@ -430,14 +438,26 @@ class DistanceSolver:
         return g / np.maximum(1.0, np.sqrt(np.square(g).sum(axis=1, keepdims=True)))
 
 
+def _printer(callback):
+    """A callback that prints the progress on stderr every 2 s, then calls ``callback`` (or None)."""
+    last = [0.0]
+
+    def show(progress):
+        if progress.seconds - last[0] >= 2.0:
+            last[0] = progress.seconds
+            print(f"  {progress}", file=sys.stderr, flush=True)
+        if callback is not None:
+            callback(progress)
+
+    return show
+
+
 class _SolverCopy:
     """A worker process's copy of a :class:`DistanceSolver` (one process, one batch at a time)."""
 
     def __init__(self, arguments, index):
         self.solver = DistanceSolver(device="cpu", workers=1, **arguments)
 
-    def solve(self, sets, W, settings, start, keep_duals, schedule):
-        """The batched ADMMs of ``sets`` at lane width W under the caller's ``settings`` (a Tolerances)."""
-        return self.solver._admm_blocks(sets, W, False, start, keep_duals, schedule, settings)
-
-
+    def solve(self, sets, W, options, start, keep_duals):
+        """The batched ADMMs of ``sets`` at lane width W under the caller's ``options`` (a SolverOptions)."""
+        return self.solver._admm_blocks(sets, W, options, start, keep_duals)

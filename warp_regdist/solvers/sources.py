@@ -17,7 +17,7 @@ from ..geometry.mesh import boundary_surface
 from ..geometry.curves import trace_curve
 from ..geometry.surface_points import check_surface_points, refine
 
-__all__ = ["vertex_sources", "SurfaceSources", "surface_sources", "solve_surface_sources"]
+__all__ = ["vertex_sources", "SurfaceSources", "surface_sources", "check_surface_batch", "refined_result"]
 
 
 def vertex_sources(sources, column, n, labels):
@@ -130,9 +130,9 @@ def surface_sources(mesh, k, sets, points, curves, closed):
     return SurfaceSources(R, out_sets, out_curves, R.mesh.sha256())
 
 
-def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, initial, keep_duals, schedule):
-    """:meth:`DistanceSolver.solve_many` with points and curves: the batch solved on the refined mesh by a
-    solver of the same settings (kept by ``solver`` for the next call with the same refined mesh)."""
+def check_surface_batch(source_sets, points, curves, closed, initial):
+    """The number of columns k of a batch with points or curves; ValueError for lists of other
+    lengths, ``closed`` without curves, or a warm start (the refined mesh's vertices differ)."""
     given = {name: x for name, x in (("source sets", source_sets), ("points", points), ("curves", curves))
              if x is not None}
     for name, x in given.items():
@@ -147,26 +147,19 @@ def solve_surface_sources(solver, source_sets, points, curves, closed, verbose, 
     if initial is not None:
         raise ValueError("expected initial=None with points or curves (they refine the mesh, so a warm start of "
                          f"its vertices does not fit), got {type(initial).__name__}")
-    k = next(iter(lengths.values()))
-    if source_sets is not None:
-        source_sets = [solver._source_mask(s, j)[0] for j, s in enumerate(source_sets)]
-    S = surface_sources(solver.mesh, k, source_sets, points, curves, closed)
-    if solver._refined is None or solver._refined[0] != S.key:
-        if solver._refined is not None:
-            solver._refined[1].close()
-        args = dict(solver._copy_arguments, mesh=S.refinement.mesh)
-        if args["vector_field"] is not None:
-            args["vector_field"] = np.asarray(args["vector_field"])[S.refinement.parent]
-        solver._refined = (S.key, type(solver)(device=solver.device, workers=None if solver._auto_workers else
-                                               solver.workers, **args))
-    res = solver._refined[1]._solve_many([s.tolist() for s in S.sets], verbose, None, keep_duals, schedule)
-    n = solver.mesh.n_vertices
-    res._attach(None, None)   # no vjp: the refined mesh's new vertices move with the points
+    return next(iter(lengths.values()))
+
+
+def refined_result(res, S, n, closed):
+    """The result ``res`` of a batch solved on the refined mesh of ``S`` (a :class:`SurfaceSources`),
+    reported on the first n vertices (the original mesh's) with the refined mesh, its distances and
+    curves beside them, and the signed distance of closed curves on triangle meshes."""
+    k = len(S.sets)
     res["refined_mesh"] = S.refinement.mesh
     res["refined_distance"] = res.distance
     res["distance"] = res.distance[:n]
     res["refined_curves"] = S.curves
-    if closed and solver.mesh.element_dim == 2:
+    if closed and S.refinement.mesh.element_dim == 2:
         signs = np.stack([S.signs(j) for j in range(k)], axis=1)
         res["refined_signed_distance"] = signs * res.refined_distance
         res["signed_distance"] = signs[:n] * res.distance
