@@ -27,7 +27,7 @@ benchmarks/results/all_pairs_accuracy.csv.
 
 With ``--larger``: the same at 0.01 and 0.005 on decimations of the shared meshes to 300-500 vertices
 (``LARGER``), whose exact minimizers do not fit Clarabel, against 5,000 iterations of the symmetric
-splitting (benchmarks/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
+splitting (research/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
 beside each run the same solve without the steepness test (``eps_excess=inf``, columns
 ``unchecked_*``). Writes benchmarks/results/all_pairs_larger.csv.
 """
@@ -44,6 +44,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+sys.path.append(os.path.join(HERE, "..", "research"))
 
 import meshes  # noqa: E402
 import warp as wp  # noqa: E402

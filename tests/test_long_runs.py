@@ -70,7 +70,7 @@ def _busy():
 
 def test_all_pairs_with_workers_under_cpu_load():
     """One all_pairs run with two workers while a busy process loads each core (the threaded
-    version died by SIGSEGV in 1 of 8 such runs; benchmarks/stress_workers.py runs 20)."""
+    version died by SIGSEGV in 1 of 8 such runs; tools/stress_workers.py runs 20)."""
     import multiprocessing
 
     load = [multiprocessing.get_context("spawn").Process(target=_busy, daemon=True) for _ in range(os.cpu_count() or 1)]

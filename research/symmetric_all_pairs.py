@@ -46,7 +46,7 @@ import numpy as np
 import scipy.linalg as sl
 import scipy.sparse as sp
 
-HERE = os.path.dirname(os.path.abspath(__file__))
+HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks")
 sys.path.insert(0, HERE)
 
 import meshes  # noqa: E402
