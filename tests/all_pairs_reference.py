@@ -20,7 +20,7 @@ import numpy as np
 import reference_solver as rs
 
 
-def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_tol=1e-8):
+def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_tol=1e-8, triangulation="intrinsic"):
     """Exact minimizer U (n, n) of the all-pairs problem with raw weight ``alpha``.
 
     Parameters
@@ -34,6 +34,8 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
         Optimize over symmetric U with the column constraints only (see the module docstring).
     gap_tol, feas_tol : float
         Clarabel's duality-gap (absolute and relative) and feasibility tolerances.
+    triangulation : {"intrinsic", "mesh"}
+        As in ``reference_solver.discrete_operators``.
 
     Returns
     -------
@@ -41,9 +43,7 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
     """
     import cvxpy as cp  # only the conic solves need it: the helpers run without cvxpy
     n = len(V)
-    areas, _ = rs.face_geometry(V, F)
-    grads = rs.gradient_matrices(V, F)
-    A_V = rs.vertex_areas(V, F)
+    areas, grads, A_V = rs.discrete_operators(V, F, triangulation)
     U = cp.Variable((n, n), symmetric=symmetric)
     sides = [U] if symmetric else [U, U.T]
     constraints = [U >= 0, cp.diag(U) == 0]
@@ -51,7 +51,7 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
     weight = np.sqrt(areas)[:, None] * np.sqrt(A_V)[None, :]  # (m, n): sqrt(a_f A_V[j])
     for side in sides:
         comps = [Gc @ side for Gc in grads]  # 3 x (m, n): gradient of every column
-        constraints.append(cp.SOC(np.ones(len(F) * n), cp.vstack([cp.vec(c, order="F") for c in comps]), axis=0))
+        constraints.append(cp.SOC(np.ones(len(areas) * n), cp.vstack([cp.vec(c, order="F") for c in comps]), axis=0))
         energy = energy + sum(cp.sum_squares(cp.multiply(weight, c)) for c in comps)
     if symmetric:
         energy = 2 * energy  # the row term equals the column term for symmetric U

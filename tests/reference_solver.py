@@ -1,7 +1,8 @@
 """Independent reference for the discrete Dirichlet problem (docs/method.md section 2).
 
 Assembles the per-face gradient, the face areas and the lumped vertex areas itself in
-numpy (deliberately not importing ``warp_regdist``), and solves
+numpy (deliberately not importing ``warp_regdist``), on the mesh's faces or on libigl's
+intrinsic Delaunay triangulation, and solves
 
     minimize_u   -A_V^T u + (alpha / 2) sum_f a_f |(G u)_f|^2
     subject to   |(G u)_f| <= 1 for every face f,   u_i = 0 for i in E
@@ -96,7 +97,47 @@ def vertex_areas(V, F):
     return A_V
 
 
-def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
+def intrinsic_geometry(V, F):
+    """Face areas, per-face gradient matrices and lumped vertex areas on the intrinsic Delaunay
+    triangulation of a triangle mesh, from libigl's ``intrinsic_delaunay_triangulation`` (an
+    implementation independent of the package's): each face is laid out flat from its edge lengths
+    (corner 0 at the origin, corner 1 on the x axis) and the gradients are 2-vectors (z = 0).
+
+    Returns
+    -------
+    areas : (m,), grads : list of 3 (m, n) CSR, A_V : (n,)
+    """
+    import igl
+
+    l0 = igl.edge_lengths(np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64))
+    l, Fi = igl.intrinsic_delaunay_triangulation(l0, np.asarray(F, dtype=np.int64))[:2]
+    n, m = len(V), len(Fi)
+    a, b, c = l[:, 0], l[:, 1], l[:, 2]                     # opposite corners 0, 1, 2
+    P = np.zeros((m, 3, 3))
+    P[:, 1, 0] = c
+    P[:, 2, 0] = (c * c + b * b - a * a) / (2.0 * c)
+    P[:, 2, 1] = np.sqrt(np.maximum(b * b - P[:, 2, 0] ** 2, 0.0))
+    flat = P.reshape(-1, 3)
+    corners = np.arange(3 * m).reshape(m, 3)
+    areas, _ = face_geometry(flat, corners)
+    local = gradient_matrices(flat, corners)                  # (m, 3m): columns are corners
+    to_vertex = sp.csr_matrix((np.ones(3 * m), (np.arange(3 * m), Fi.ravel())), shape=(3 * m, n))
+    grads = [(g @ to_vertex).tocsr() for g in local]
+    A_V = np.zeros(n)
+    for k in range(3):
+        np.add.at(A_V, Fi[:, k], areas / 3.0)
+    return areas, grads, A_V
+
+
+def discrete_operators(V, F, triangulation="intrinsic"):
+    """(areas, grads, A_V) of the problem on the mesh's own elements ("mesh") or on the intrinsic
+    Delaunay triangulation (triangle meshes; tetrahedra always use their own)."""
+    if triangulation == "intrinsic" and F.shape[1] == 3:
+        return intrinsic_geometry(V, F)
+    return face_geometry(V, F)[0], gradient_matrices(V, F), vertex_areas(V, F)
+
+
+def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, triangulation="intrinsic"):
     """Exact minimizer of the discrete Dirichlet-regularized distance problem.
 
     Parameters
@@ -118,6 +159,9 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
         the objective becomes -A_V^T u + (alpha / 2) u^T W u, written as |R u|^2 with
         R = diag(sqrt(lambda)) Q^T from the dense eigendecomposition W = Q diag(lambda) Q^T
         (eigenvalues below 0, round-off, clipped to 0; for a few hundred vertices).
+    triangulation : {"intrinsic", "mesh"}
+        The triangulation of the gradient constraint, the energy and the lumped areas
+        (:func:`discrete_operators`), as the package's ``triangulation``.
 
     Returns
     -------
@@ -126,9 +170,7 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
     """
     import cvxpy as cp  # only the conic solves need it: the helpers run without cvxpy
     n = len(V)
-    areas, _ = face_geometry(V, F)
-    Gx, Gy, Gz = gradient_matrices(V, F)
-    A_V = vertex_areas(V, F)
+    areas, (Gx, Gy, Gz), A_V = discrete_operators(V, F, triangulation)
     u = cp.Variable(n)
     g = cp.vstack([Gx @ u, Gy @ u, Gz @ u])  # (3, m)
     objective = -A_V @ u
@@ -144,7 +186,7 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None):
             + cp.sum_squares(cp.multiply(w, Gz @ u))
         )
         objective = objective + 0.5 * alpha * energy
-    constraints = [cp.SOC(np.ones(len(F)), g, axis=0), u[np.asarray(sources)] == 0]
+    constraints = [cp.SOC(np.ones(len(areas)), g, axis=0), u[np.asarray(sources)] == 0]
     problem = cp.Problem(cp.Minimize(objective), constraints)
     problem.solve(
         solver=cp.CLARABEL,

@@ -34,7 +34,7 @@ def _error(u, exact):
 @pytest.mark.parametrize("alpha_hat", [0.03, 0.1])
 def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
     mesh, refs = cat80
-    res = wrd.all_pairs(mesh, alpha_hat, device=device)
+    res = wrd.all_pairs(mesh, alpha_hat, device=device, triangulation="mesh")   # the references' triangulation
     assert res.converged and res.change <= wrd.AllPairsOptions().eps_change
     assert _error(res.distance, refs[alpha_hat]) <= 5e-3
 
@@ -43,7 +43,7 @@ def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
 @pytest.mark.parametrize("alpha_hat", [0.03, 0.1])
 def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
     mesh, refs = cat80
-    res = wrd.AllPairsSolver(mesh, alpha_hat, workers=1).solve(accuracy=accuracy)
+    res = wrd.AllPairsSolver(mesh, alpha_hat, workers=1, triangulation="mesh").solve(accuracy=accuracy)
     assert res.converged and res.error_estimate <= 0.3 * accuracy
     assert _error(res.distance, refs[alpha_hat]) <= accuracy
 
@@ -116,7 +116,7 @@ def test_unconverged_all_pairs_names_its_obtuse_steepest_triangle(cat80):
     climbs across one of them, and the warning says which, with its angle."""
     mesh, _ = cat80
     with pytest.warns(wrd.ConvergenceWarning) as caught:
-        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1)
+        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1, triangulation="mesh")
     hints = [str(w.message) for w in caught if "obtuse" in str(w.message)]
     assert not res.converged and res.gradient_excess > 0.005
     assert hints == [f"all pairs: column 78 climbs {res.gradient_excess:.3g} of max U above unit speed across "

@@ -18,7 +18,8 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["Operators", "build_operators", "element_gradients", "element_diameters", "largest_angles"]
+__all__ = ["Operators", "build_operators", "assemble_operators", "element_gradients", "element_diameters",
+           "largest_angles", "largest_basis_angles", "choose_triangulation"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +47,8 @@ class Operators:
         local index of i in each: the gather form of D.
     diameters : (m,) ndarray
         The longest edge of each element.
+    intrinsic : IntrinsicTriangulation or None
+        The intrinsic Delaunay triangulation the operators are built on (None: the mesh's elements).
     """
 
     elements: np.ndarray
@@ -57,6 +60,7 @@ class Operators:
     stiffness: sp.csr_matrix
     vertex_elements: tuple
     diameters: np.ndarray
+    intrinsic: object = None
 
     @property
     def length_scale(self):
@@ -118,25 +122,77 @@ def largest_angles(vertices, faces):
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max(axis=1)
 
 
+def largest_basis_angles(basis):
+    """(m,) largest interior angle, in degrees, of triangles given by their hat-function gradients (m, 3, 3):
+    the angle at corner c is pi minus the angle between the gradients of the other two corners (each
+    normal to the side opposite its corner). Works for faces laid out in any frame."""
+    b0, b1, b2 = basis[:, 0], basis[:, 1], basis[:, 2]
+
+    def between(p, q):
+        cos = np.einsum("md,md->m", p, q) / (np.linalg.norm(p, axis=1) * np.linalg.norm(q, axis=1))
+        return 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    return np.max([between(b1, b2), between(b2, b0), between(b0, b1)], axis=0)
+
+
 def mean_edge_length(vertices, faces):
     """Mean over the three sides of every triangle (m, 3) of |v_a - v_b| (an interior edge counts twice)."""
     P = vertices[faces]
     return float(np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2).mean())
 
 
-def build_operators(mesh):
+def choose_triangulation(mesh, regularizer="dirichlet", triangulation=None):
+    """The triangulation the solvers build their operators on: ``triangulation`` checked, or for None
+    "intrinsic" where it applies (triangle meshes, not point clouds, not the vector-field regularizer)."""
+    applies = mesh.element_dim == 2 and mesh.element_weights is None and regularizer != "vector_field"
+    if triangulation is None:
+        return "intrinsic" if applies else "mesh"
+    if triangulation not in ("intrinsic", "mesh"):
+        raise ValueError(f"expected triangulation 'intrinsic', 'mesh' or None, got {triangulation!r}")
+    if triangulation == "intrinsic" and not applies:
+        what = ("a tetrahedral mesh" if mesh.element_dim == 3 else "a PointCloud" if mesh.element_weights is not None
+                else "the vector-field regularizer (its field lives on the mesh's faces)")
+        raise ValueError(f"expected triangulation 'mesh' for {what}, got 'intrinsic'")
+    return triangulation
+
+
+def build_operators(mesh, triangulation="mesh"):
     """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`.
+
+    ``triangulation``: "mesh" builds them on the mesh's own elements; "intrinsic" on the intrinsic
+    Delaunay triangulation of a triangle mesh's vertices (:mod:`warp_regdist.geometry.intrinsic`):
+    the same vertices and surface, faces known by their edge lengths and laid out flat, so the
+    gradients are 2-vectors in each face's own frame (z = 0). The element volumes are multiplied by
+    ``mesh.element_weights`` where it has them (point clouds, always on their own elements).
+    """
+    if triangulation not in ("mesh", "intrinsic"):
+        raise ValueError(f"expected triangulation 'mesh' or 'intrinsic', got {triangulation!r}")
+    n = mesh.n_vertices
+    if triangulation == "intrinsic" and mesh.element_dim == 2 and mesh.element_weights is None:
+        from .intrinsic import flat_layout, intrinsic_delaunay
+
+        T = intrinsic_delaunay(mesh.vertices, mesh.elements)
+        if T.flip_count == 0:       # the mesh is intrinsically Delaunay already: its own operators
+            return build_operators(mesh)
+        m = T.faces.shape[0]
+        basis, vol = element_gradients(flat_layout(T.lengths).reshape(-1, 3), np.arange(3 * m).reshape(m, 3))
+        return assemble_operators(T.faces, basis, vol, n, T.lengths.max(axis=1), intrinsic=T)
+    T = mesh.elements
+    basis, vol = element_gradients(mesh.vertices, T)
+    if mesh.element_weights is not None:
+        vol = vol * mesh.element_weights
+    return assemble_operators(T, basis, vol, n, element_diameters(mesh.vertices, T))
+
+
+def assemble_operators(T, basis, vol, n, diameters, intrinsic=None):
+    """The :class:`Operators` of elements T (m, d + 1) on n vertices with hat-function gradients
+    ``basis`` (m, d + 1, 3) and volumes ``vol`` (m,).
 
     G is written in CSR form directly (row 3 e + c holds the element's vertices in
     increasing order) and M_F G^T from the vertex-element incidence (one counting sort),
     so that W_D = (G^T M_F) G is a single sparse product, with no COO or CSC conversions.
-    The element volumes a_e are multiplied by ``mesh.element_weights`` where it has them.
     """
-    T = mesh.elements
-    n, m, k = mesh.n_vertices, T.shape[0], T.shape[1]
-    basis, vol = element_gradients(mesh.vertices, T)
-    if mesh.element_weights is not None:
-        vol = vol * mesh.element_weights
+    m, k = T.shape
     index = np.int32 if max(3 * m * k, 3 * m, n) < 2 ** 31 else np.int64
     local = np.argsort(T, axis=1)
     columns = np.broadcast_to(np.take_along_axis(T, local, axis=1)[:, None, :].astype(index), (m, 3, k))
@@ -151,5 +207,4 @@ def build_operators(mesh):
     W = ((W + W.T) * 0.5).tocsr()
     W.sort_indices()
     AV = np.bincount(T.ravel(), weights=np.repeat(vol / k, k), minlength=n)
-    return Operators(T, basis, vol, AV, float(vol.sum()), G, W, (offsets, element, corner),
-                     element_diameters(mesh.vertices, T))
+    return Operators(T, basis, vol, AV, float(vol.sum()), G, W, (offsets, element, corner), diameters, intrinsic)

@@ -55,7 +55,7 @@ from ..atomic_write import check_room
 from ..errors import ConvergenceWarning
 from ..file_lock import FileLock
 from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators, largest_angles
+from ..geometry.operators import build_operators, choose_triangulation, largest_basis_angles
 from ..kernels.lanes import SCALARS
 from ..options import AllPairsOptions
 from .admm import PenaltySchedule
@@ -97,6 +97,9 @@ class AllPairsSolver:
         Stopping rule, penalties, iteration cap and X-step settings (None: the defaults; see
         :meth:`AllPairsOptions.for_accuracy`); :meth:`solve` overrides fields per call. The
         multigrid preconditioner targets the middle of these options' penalty range.
+    triangulation : {"intrinsic", "mesh"} or None
+        The triangulation of the operators, as for :class:`~warp_regdist.DistanceSolver` (None:
+        "intrinsic"). U stays (n, n) over the input's vertices.
 
     Attributes
     ----------
@@ -112,7 +115,8 @@ class AllPairsSolver:
     >>> U = solver.solve(accuracy=0.01, checkpoint="run.npz").distance
     """
 
-    def __init__(self, mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None):
+    def __init__(self, mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None,
+                 triangulation=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         if mesh.element_dim != 2:
@@ -133,7 +137,8 @@ class AllPairsSolver:
             raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
                              "(solve each component separately)")
         self.mesh, self.dtype, self.device = mesh, dtype, parse_device(device)
-        self.operators = ops = build_operators(mesh)
+        self.triangulation = choose_triangulation(mesh, "dirichlet", triangulation)
+        self.operators = ops = build_operators(mesh, self.triangulation)
         self._excess = functools.partial(gradient_excess, ops.grad, ops.diameters)
         self._steepest = functools.partial(steepest_element, ops.grad, ops.diameters)
         self._penalty_mid = _penalty_mid(PenaltySchedule.of(self.options, ops.length_scale), ops.length_scale)
@@ -215,7 +220,7 @@ class AllPairsSolver:
         if resume is not None and initial is not None:
             raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: "
                              f"{os.fspath(resume)!r} and {os.fspath(initial)!r}")
-        fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor)
+        fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation)
         size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, run_options.max_iterations)
         if checkpoint is not None:
             check_room([checkpoint_room(checkpoint, size)])
@@ -227,7 +232,8 @@ class AllPairsSolver:
             saved = (stack.enter_context(read_checkpoint(resume, fingerprint, mesh.n_elements))
                      if resume is not None else None)
             start = (stack.enter_context(read_checkpoint(initial, fingerprint, mesh.n_elements,
-                                                         ("mesh_sha256", "n_vertices", "dtype"), "initial"))
+                                                         ("mesh_sha256", "n_vertices", "dtype", "triangulation"),
+                                                         "initial"))
                      if initial is not None else None)
             memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device)
             if saved is not None and "final" in saved:
@@ -262,7 +268,7 @@ class AllPairsSolver:
                               "held: not converged; more iterations or a smaller accuracy", ConvergenceWarning,
                               stacklevel=3)
         if not res.converged and res.gradient_excess > options.eps_excess and element >= 0:
-            angle = float(largest_angles(self.mesh.vertices, self.mesh.elements[[element]])[0])
+            angle = float(largest_basis_angles(self.operators.basis[[element]])[0])
             if angle >= OBTUSE_ANGLE:
                 warnings.warn(f"all pairs: column {column} climbs {res.gradient_excess:.3g} of max U above unit speed "
                               f"across triangle {element}, whose largest angle is {angle:.0f} degrees: the iterations "
@@ -278,16 +284,17 @@ _NOT_FROM_ACCURACY = ("eps_abs", "change_window", "max_iterations", "relaxation"
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None, accuracy=None,
               callback=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, initial=None, restart=False,
-              **overrides):
+              triangulation=None, **overrides):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh:
-    ``AllPairsSolver(mesh, alpha_hat, device, dtype, workers, options).solve(accuracy, ...)`` with the
+    ``AllPairsSolver(mesh, alpha_hat, device, dtype, workers, options, triangulation).solve(accuracy, ...)`` with the
     other arguments and ``overrides`` (options fields) passed to :meth:`AllPairsSolver.solve`.
 
     Returns
     -------
     AllPairsResult
     """
-    solver = AllPairsSolver(mesh, alpha_hat, device=device, dtype=dtype, workers=workers, options=options)
+    solver = AllPairsSolver(mesh, alpha_hat, device=device, dtype=dtype, workers=workers, options=options,
+                            triangulation=triangulation)
     return solver.solve(accuracy=accuracy, callback=callback, checkpoint=checkpoint,
                         checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial, restart=restart,
                         **overrides)

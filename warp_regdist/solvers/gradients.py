@@ -38,6 +38,7 @@ import warp as wp
 from scipy.optimize import OptimizeResult
 
 from ..errors import ConvergenceWarning
+from ..geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
 from ..kernels import adjoint
 
 __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
@@ -189,27 +190,38 @@ class SmoothedProblem:
                            f"(mu_hat {_START:g} to {self.mu_hat:g}) within {_MAX_NEWTON} steps")
 
 
-def _position_gradient(mesh, u, w, alpha_hat, mu_hat):
+def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
     """-d/dx [w . grad_u F(u; x, alpha_hat)] (n, 3) by the reverse pass of kernels/adjoint.py:
     w . grad_u F = sum(load) + alpha sum(dirichlet) + mu sum(barrier), alpha = alpha_hat A^(1/d),
-    mu = mu_hat A^(1 + 1/d) / m, A = sum(volume)."""
-    T = mesh.elements
+    mu = mu_hat A^(1 + 1/d) / m, A = sum(volume). On intrinsic operators the kernel runs on every face
+    laid out flat from its lengths, and the derivative goes back through the layout and the flips."""
+    intrinsic = ops.intrinsic
+    if intrinsic is None:
+        x, T, uc, wc = mesh.vertices, mesh.elements, u, w
+    else:
+        m3 = intrinsic.faces.size
+        x, T = flat_layout(intrinsic.lengths).reshape(-1, 3), np.arange(m3).reshape(-1, 3)
+        uc, wc = u[intrinsic.faces].ravel(), w[intrinsic.faces].ravel()
     m, d = T.shape[0], T.shape[1] - 1
     kernel = adjoint.triangle_terms if d == 2 else adjoint.tetrahedron_terms
-    x = wp.array(mesh.vertices, dtype=wp.vec3d, device="cpu", requires_grad=True)
+    xw = wp.array(np.ascontiguousarray(x), dtype=wp.vec3d, device="cpu", requires_grad=True)
     out = [wp.zeros(m, dtype=wp.float64, device="cpu", requires_grad=True) for _ in range(4)]
     tape = wp.Tape()
     with tape:
-        wp.launch(kernel, m, device="cpu", inputs=[x, wp.array(T.astype(np.int32), dtype=wp.int32, device="cpu"),
-                                                   wp.array(u, dtype=wp.float64, device="cpu"),
-                                                   wp.array(w, dtype=wp.float64, device="cpu")], outputs=out)
+        wp.launch(kernel, m, device="cpu", inputs=[xw, wp.array(T.astype(np.int32), dtype=wp.int32, device="cpu"),
+                                                   wp.array(uc, dtype=wp.float64, device="cpu"),
+                                                   wp.array(wc, dtype=wp.float64, device="cpu")], outputs=out)
     dirichlet, barrier, A = (float(o.numpy().sum()) for o in out[1:])
     s = A ** (1.0 / d)
     alpha, mu = alpha_hat * s, mu_hat * A * s / m
     dA = (alpha * dirichlet / d + mu * barrier * (1.0 + 1.0 / d)) / A   # through alpha(A) and mu(A)
     seeds = (1.0, alpha, mu, dA)
     tape.backward(grads={o: wp.full(m, c, dtype=wp.float64, device="cpu") for o, c in zip(out, seeds)})
-    return -x.grad.numpy()
+    grad = -xw.grad.numpy()
+    if intrinsic is None:
+        return grad
+    return length_gradient(intrinsic, mesh.vertices,
+                           flat_layout_gradient(intrinsic.lengths, grad.reshape(-1, 3, 3)))
 
 
 class SmoothedSolution(NamedTuple):
@@ -252,7 +264,7 @@ def adjoint_gradients(solver, solution, b):
     w = np.zeros(f.size)
     w[f] = solution.lu.solve(rhs)
     u = np.where(f, solution.distance, 0.0)
-    dx = _position_gradient(solver.mesh, u, w, solver.alpha_hat, solution.mu_hat)
+    dx = _position_gradient(solver.mesh, solver.operators, u, w, solver.alpha_hat, solution.mu_hat)
     return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
 
 

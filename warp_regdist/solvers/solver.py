@@ -25,9 +25,9 @@ import numpy as np
 import warp as wp
 
 from ..arguments import check_weight, parse_device, parse_workers
-from ..errors import ConvergenceWarning
+from ..errors import ConvergenceWarning, MeshWarning
 from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators
+from ..geometry.operators import build_operators, choose_triangulation, largest_basis_angles
 from ..geometry.regularizers import build_regularizer
 from ..kernels.lanes import SCALARS, lane_type, lane_width
 from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
@@ -86,6 +86,13 @@ class DistanceSolver:
     options : SolverOptions or None
         Stopping rule, penalty schedule, iteration cap and linear-solve settings (None: the
         defaults); :meth:`solve` and :meth:`solve_many` override fields per call by keyword.
+    triangulation : {"intrinsic", "mesh"} or None
+        The triangulation the operators live on: "intrinsic" the intrinsic Delaunay triangulation
+        of a triangle mesh's vertices (edge flips: the same vertices and surface, no obtuse pair of
+        opposite angles; docs/concepts.md), "mesh" the mesh's own elements. None: "intrinsic" for
+        triangle meshes with the Dirichlet or Hessian regularizer, "mesh" otherwise (tetrahedra,
+        point clouds, the vector-field regularizer, whose field lives on the mesh's faces). Outputs
+        are per input vertex either way; ``duals`` are per element of the triangulation used.
 
     Examples
     --------
@@ -99,7 +106,7 @@ class DistanceSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64", workers=None, hierarchy=None, options=None):
+                 device=None, dtype="float64", workers=None, hierarchy=None, options=None, triangulation=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -113,13 +120,15 @@ class DistanceSolver:
         self.device = parse_device(device)
         self.workers = 1 if self.device.is_cuda or not processes_available() else workers
         self._copy_arguments = dict(alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
-                                    vector_field=vector_field, dtype=dtype, options=self.options)
+                                    vector_field=vector_field, dtype=dtype, options=self.options,
+                                    triangulation=triangulation)
         self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
-        self.operators = ops = build_operators(mesh)
+        self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
+        self.operators = ops = build_operators(mesh, triangulation)
         self.regularizer = build_regularizer(mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
         self.device_mesh = DeviceMesh(ops, self.scalar, self.device)
@@ -143,7 +152,7 @@ class DistanceSolver:
         (u (n, k), y (m, 3, k) or None, penalty (k,) or None); None stays None."""
         if initial is None:
             return None
-        n, m = self.mesh.n_vertices, self.mesh.n_elements
+        n, m = self.mesh.n_vertices, self.operators.element_volumes.size
         if not isinstance(initial, DistanceResult):
             raise ValueError(f"expected initial as a DistanceResult of solve or solve_many, got {type(initial).__name__}")
         u = np.asarray(initial.distance, dtype=np.float64)
@@ -279,6 +288,7 @@ class DistanceSolver:
             warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
                           f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
+        _warn_below_zero(self.operators, res.distance, source_sets)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
@@ -329,7 +339,7 @@ class DistanceSolver:
         if key not in self._workspaces:
             self._workspaces = {}
             V = lane_type(self.scalar, W)
-            n, m, dev = self.mesh.n_vertices, self.mesh.n_elements, self.device
+            n, m, dev = self.mesh.n_vertices, self.operators.element_volumes.size, self.device
             vertexwise = [wp.zeros((n, nb), dtype=V, device=dev) for _ in range(8)]
             ws = Workspace(
                 width=W, u=vertexwise[0], mask=vertexwise[1], Dy=vertexwise[2], Dz=vertexwise[3], rhs=vertexwise[4],
@@ -434,8 +444,37 @@ class DistanceSolver:
 
     def _project_gradient(self, u):
         """z = Proj_{|.|<=1}(G u) per element and column: (n, k) -> (m, 3, k)."""
-        g = (self.operators.grad @ u).reshape(self.mesh.n_elements, 3, -1)
+        g = (self.operators.grad @ u).reshape(self.operators.element_volumes.size, 3, -1)
         return g / np.maximum(1.0, np.sqrt(np.square(g).sum(axis=1, keepdims=True)))
+
+
+NEGATIVE = 1e-6
+"""A distance below -NEGATIVE x its column's max is reported (:func:`_warn_below_zero`)."""
+
+
+def _warn_below_zero(ops, u, source_sets):
+    """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
+    column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
+    below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
+    be represented), which the intrinsic triangulation makes rare but not impossible."""
+    finite = np.where(np.isfinite(u), u, 0.0)
+    top = finite.max(axis=0)
+    low = finite.min(axis=0)
+    bad = np.flatnonzero(low < -NEGATIVE * np.maximum(top, 1e-300))
+    if bad.size == 0:
+        return
+    j = bad[np.argmin(low[bad] / top[bad])]
+    i = int(np.argmin(finite[:, j]))
+    where = ""
+    if ops.basis.shape[1] == 3:
+        around = np.flatnonzero((ops.elements == i).any(axis=1))
+        angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
+        where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
+    warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
+                  f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
+                  f"{list(source_sets[j])[:4]}{where}): the discrete problem cannot represent the distance's cone "
+                  "there; a finer or better shaped mesh near the sources avoids it (docs/concepts.md)", MeshWarning,
+                  stacklevel=4)
 
 
 def _printer(callback):
