@@ -14,7 +14,7 @@ from .geometry.line_field import line_field
 from .errors import CheckpointWarning, ConvergenceWarning, MeshError, MeshWarning, WorkerError, WriteError
 from .geometry.mesh import Mesh, boundary_faces, boundary_vertices
 from .geometry.mesh_io import data_path, load_mesh
-from .geometry.repair import merge_duplicate_vertices
+from .geometry.repair import Repair, merge_duplicate_vertices, repair_mesh, split_components
 from .geometry.surface_points import surface_points
 from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
@@ -43,7 +43,8 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
+__all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "repair_mesh", "Repair",
+           "split_components", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "SolverOptions", "AllPairsOptions", "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "__version__"]

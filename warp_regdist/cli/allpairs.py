@@ -9,8 +9,8 @@ import tempfile
 
 import numpy as np
 
-from .common import (announce_compile, check_output, exit_status, load, solver_options, subcommand, warn,
-                     warnings_to_stderr)
+from .common import (announce_compile, check_output, exit_status, load, repair_option, solver_options, subcommand,
+                     warn, warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -51,6 +51,7 @@ def add_parser(sub) -> None:
                           help="ADMM iteration cap (default: 3000)")
     allpairs.add_argument("--workers", type=int, default=None, metavar="N",
                           help="CPU processes sharing every step (default: the cores available)")
+    repair_option(allpairs)
     solver_options(allpairs)
 
 
@@ -77,12 +78,12 @@ def run(args: argparse.Namespace) -> int:
     for flag, path in (("--resume", args.resume), ("--initial", args.initial)):
         if path is not None and not os.path.isfile(path):
             raise ValueError(f"expected {flag} as an existing checkpoint file, got {path!r} (no such file)")
-    mesh = load(args.mesh)
-    n = mesh.n_vertices
+    mesh = load(args.mesh, args.repair)
+    n = mesh.n_vertices if mesh.input_index is None else mesh.input_index.size
     planned = [(args.output, 8 * n * n + 128, "--output")]
     if args.checkpoint is not None:
-        planned.append(checkpoint_room(args.checkpoint, checkpoint_bytes(n, mesh.n_elements, args.dtype,
-                                                                        args.max_iterations)))
+        size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, args.dtype, args.max_iterations)
+        planned.append(checkpoint_room(args.checkpoint, size))
     check_room(planned)
     announce_compile(args.dtype, args.quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
@@ -97,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     elif not result.converged:
         warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is "
              f"approximate{saved}")
-    write_matrix(args.output, result.distance, args.checkpoint)
+    U = result.distance if mesh.input_index is None else result.distance[np.ix_(mesh.input_index, mesh.input_index)]
+    write_matrix(args.output, U, args.checkpoint)
     if not args.quiet:
         print(f"{os.path.basename(args.mesh)}: {n} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "

@@ -134,7 +134,7 @@ def parse_surface_points(path: str, mesh, option: str, max_distance: float | Non
 
 
 def parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
-    """Source vertex indices (s,) and their description for the summary."""
+    """Source vertex indices (s,) of ``mesh`` (given in its file's numbering) and their description."""
     from .. import boundary_vertices
 
     if text.strip().lower() == "boundary":
@@ -147,11 +147,12 @@ def parse_sources(text: str, mesh) -> tuple[np.ndarray, str]:
         raise ValueError(
             f"expected --sources as comma-separated vertex indices (e.g. 2272,17) or 'boundary', got {text!r}"
         )
-    sources = vertex_indices([int(item) for item in items], mesh.n_vertices, "--sources")
+    n = mesh.n_vertices if mesh.input_index is None else mesh.input_index.size
+    sources = vertex_indices([int(item) for item in items], n, "--sources")
     listed = ", ".join(str(s) for s in sources[:LISTED_SOURCES])
     more = f", ... ({sources.size} in all)" if sources.size > LISTED_SOURCES else ""
     noun = "vertex" if sources.size == 1 else "vertices"
-    return sources, f"source {noun} {listed}{more}"
+    return file_indices(mesh, sources), f"source {noun} {listed}{more}"
 
 
 def vertex_indices(values: list[int], n: int, option: str) -> np.ndarray:
@@ -235,8 +236,16 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
     return solver, result
 
 
-def load(path: str):
-    """The mesh of a mesh file, or the PointCloud of a point file (.xyz, .npy, a PLY without faces)."""
+def repair_option(p: argparse.ArgumentParser) -> None:
+    """--repair, for the commands that read a triangle mesh."""
+    p.add_argument("--repair", action="store_true",
+                   help="merge vertices at one position, drop degenerate faces and cut non-manifold edges (a "
+                   "warning says what changed); vertex indices and outputs stay those of the file")
+
+
+def load(path: str, repair: bool = False):
+    """The mesh of a mesh file (``repair``: repaired, its ``input_index`` mapping the file's vertices),
+    or the PointCloud of a point file (.xyz, .npy, a PLY without faces)."""
     from .. import MeshError, load_mesh
     from ..geometry.mesh_io import load_points
 
@@ -244,11 +253,22 @@ def load(path: str):
         if path.lower().endswith((".xyz", ".npy")):
             return load_points(path)
         try:
-            return load_mesh(path)
+            return load_mesh(path, repair=repair)
         except MeshError as exc:
             if path.lower().endswith(".ply") and "got none (empty file, or a point cloud)" in str(exc):
                 return load_points(path)
-            raise
+            raise MeshError(str(exc).replace("load_mesh(path, repair=True) or warp_regdist.repair_mesh(vertices, "
+                                             "faces)", "--repair")) from None
+
+
+def file_indices(mesh, sources: np.ndarray) -> np.ndarray:
+    """Vertex indices of the file as indices of ``mesh`` (the same unless it was repaired)."""
+    return sources if mesh.input_index is None else np.unique(mesh.input_index[sources])
+
+
+def file_values(mesh, values: np.ndarray) -> np.ndarray:
+    """Per-vertex values of ``mesh`` per vertex of its file (the same unless it was repaired)."""
+    return values if mesh.input_index is None else values[mesh.input_index]
 
 
 def summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:

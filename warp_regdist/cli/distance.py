@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_status, load, max_distance_option,
-                     max_iterations_option, parse_sources, parse_surface_points, single_source_options, solve,
-                     solver_options, subcommand, summary, warn, write_values)
+from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_status, file_values, load,
+                     max_distance_option, max_iterations_option, parse_sources, parse_surface_points, repair_option,
+                     single_source_options, solve, solver_options, subcommand, summary, warn, write_values)
 
 
 def add_parser(sub) -> None:
@@ -94,6 +94,7 @@ def add_parser(sub) -> None:
     )
     max_distance_option(distance)
     max_iterations_option(distance)
+    repair_option(distance)
     solver_options(distance)
 
 
@@ -122,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("expected --sources or --curve, got neither")
     if args.closed and args.curve is None:
         raise ValueError("expected --closed with a --curve, got no --curve")
-    mesh = load(args.mesh)
+    mesh = load(args.mesh, args.repair)
     sources, where, described = None, {}, []
     if args.sources is not None and args.sources.lower().endswith(".csv"):
         where["points"], text = parse_surface_points(args.sources, mesh, "--sources", args.max_distance)
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output.lower().endswith(".vtu"):
         save_vtu(args.output, mesh, {"signed_distance" if args.closed else "distance": values})
     else:
-        write_values(args.output, values)
+        write_values(args.output, file_values(mesh, values))
     written = [args.output]
     if args.png is not None:
         marked = sources if args.sources is not None and args.sources.strip().lower() != "boundary" else None

@@ -49,6 +49,11 @@ class Mesh:
     """(m,) factors of the element volumes in the finite-element operators; None: all 1 (a point
     cloud's triangles, which overlap, carry their multiplicity / 3)."""
 
+    input_index = None
+    """(n_in,) the vertex of this mesh of every vertex of the file or arrays it was repaired from
+    (:func:`~warp_regdist.repair_mesh`, ``load_mesh(path, repair=True)``): values on this mesh read back
+    in the input's numbering as ``u[mesh.input_index]``; None: the numbering is the input's."""
+
     def __init__(self, vertices, elements):
         V = np.asarray(vertices)
         T = np.asarray(elements)
@@ -100,7 +105,7 @@ class Mesh:
             lie = "vertex lies" if count == 1 else "vertices lie"
             warnings.warn(f"{count} {lie} where another vertex of the mesh lies (first: "
                           f"{a} and {b}): the mesh is cut there and no distance crosses the cut; merge them with "
-                          "warp_regdist.merge_duplicate_vertices(mesh)",
+                          "warp_regdist.merge_duplicate_vertices(mesh) or load_mesh(path, repair=True)",
                           MeshWarning, stacklevel=3)
 
     def __setstate__(self, state):
@@ -156,7 +161,10 @@ class Mesh:
         tiny = tolerances.degenerate_element * longest_squared ** (self.element_dim / 2)
         bad = np.flatnonzero(np.abs(vol) <= tiny)
         if bad.size:
-            raise MeshError(f"expected non-degenerate elements, got {bad.size} {what} {kind}(s) (first: {kind} {bad[0]} = {self.elements[bad[0]].tolist()})")
+            fix = ("; load_mesh(path, repair=True) or warp_regdist.repair_mesh(vertices, faces) drops them"
+                   if self.element_dim == 2 else "")
+            raise MeshError(f"expected non-degenerate elements, got {bad.size} {what} {kind}(s) (first: {kind} "
+                            f"{bad[0]} = {self.elements[bad[0]].tolist()}){fix}")
         return vol
 
     def _check_manifold_edges(self):
@@ -170,7 +178,8 @@ class Mesh:
         k = np.flatnonzero(counts[inv] > 2)[0]
         raise MeshError(
             f"expected a manifold mesh (at most 2 faces per edge), got {np.count_nonzero(counts > 2)} non-manifold "
-            f"edges (first: edge {sorted([a[k].item(), b[k].item()])} shared by {counts[inv[k]]} faces)")
+            f"edges (first: edge {sorted([a[k].item(), b[k].item()])} shared by {counts[inv[k]]} faces); "
+            "load_mesh(path, repair=True) or warp_regdist.repair_mesh(vertices, faces) cuts the mesh along them")
 
     def components(self):
         """(n,) int64 connected-component label of every vertex, read-only; unreferenced vertices get -1.

@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 
-from ..errors import MeshError
+from ..errors import MeshError, MeshWarning
 from .mesh import Mesh
 
 __all__ = ["load_mesh", "load_points", "data_path", "POINT_FORMATS"]
@@ -34,29 +34,37 @@ def data_path(name):
     return os.path.join(folder, name)
 
 
-def load_mesh(path):
+def load_mesh(path, repair=False):
     """Read a triangle or tetrahedral mesh file, keeping the file's vertex order.
 
-    Triangle surfaces: OBJ (:func:`_read_obj`), OFF, PLY, STL (trimesh); polygons with more
-    than three corners are fan-triangulated, with a warning that says how many. STL stores
-    every triangle's corners separately: corners with identical coordinates are merged into
-    one vertex, numbered in order of first appearance. Tetrahedral (or
+    Triangle surfaces: OBJ (:func:`_read_obj`), OFF, PLY (faces or triangle strips), STL (trimesh);
+    polygons with more than three corners are fan-triangulated, with a warning that says how many.
+    STL stores every triangle's corners separately: corners with identical coordinates are merged
+    into one vertex, numbered in order of first appearance. Tetrahedral (or
     triangle) meshes: gmsh ``.msh`` (ASCII or binary, versions 2.2 and 4.1; also ANSYS
     Fluent ``.msh``), VTK ``.vtk`` / ``.vtu``, Medit ``.mesh`` (meshio),
     see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
     for a missing or unreadable file and for every defect :class:`Mesh` checks.
+
+    ``repair=True`` (triangle meshes) merges vertices at one position, drops degenerate faces and
+    cuts non-manifold edges (:func:`~warp_regdist.repair_mesh`), with a :class:`~warp_regdist.MeshWarning`
+    that says what it changed; the mesh's ``input_index`` maps the file's vertices to its own.
     """
     path = os.fsdecode(os.fspath(path))
     if not os.path.isfile(path):
         raise MeshError(f"expected an existing mesh file, got {path!r} (no such file)")
+    if not isinstance(repair, (bool, np.bool_)):
+        raise ValueError(f"expected repair as True or False, got {repair!r}")
     ext = os.path.splitext(path)[1].lower()
     if ext in _VOLUME_FORMATS:
         V, T = _read_volume_file(path, ext)
-        return Mesh(V, T)
+        if repair and T.shape[1] == 4:
+            raise MeshError(f"expected a triangle mesh for repair=True, got tetrahedra in {path!r}")
+        return _mesh(path, V, T, repair)
     if ext == ".obj":
         V, F, n_poly = _read_obj(path)
         _warn_polygons(path, n_poly)
-        return Mesh(V, F)
+        return _mesh(path, V, F, repair)
     if ext not in _SURFACE_FORMATS:
         raise MeshError(f"expected a mesh file ending in .obj, .off, .ply, .stl, .msh, .vtk, .vtu or .mesh, "
                         f"got {path!r}")
@@ -70,6 +78,8 @@ def load_mesh(path):
         raise MeshError(f"could not read mesh file {path!r}: not a valid {ext[1:].upper()} file{detail}") from None
     V = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
     F = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))))
+    if F.size == 0 and ext == ".ply":
+        V, F = read_ply_strips(path)
     if F.size == 0:
         raise MeshError(f"expected faces in {path!r}, got none (empty file, or a point cloud)")
     if V.shape[0] == 0:
@@ -77,7 +87,118 @@ def load_mesh(path):
     if ext == ".stl":
         V, F = _merge_equal_vertices(V, F)
     _warn_polygons(path, _count_off_polygons(path) if ext == ".off" else 0)
-    return Mesh(V, F)
+    return _mesh(path, V, F, repair)
+
+
+def _mesh(path, V, F, repair):
+    """Mesh(V, F), or with ``repair`` the repaired mesh and a warning saying what changed."""
+    if not repair:
+        return Mesh(V, F)
+    from .repair import repair_mesh
+
+    mesh, done = repair_mesh(V, F)
+    if str(done) != "nothing to repair":
+        warnings.warn(f"{path}: {done}", MeshWarning, stacklevel=3)
+    return mesh
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def read_ply_strips(path):
+    """Vertices (n, 3) and triangles of a PLY file whose faces are triangle strips (``element
+    tristrips`` with a ``vertex_indices`` list, -1 restarting a strip): strip s_0, s_1, ... gives the
+    triangles (s_k, s_k+1, s_k+2), every other one reversed to keep the orientation, without the
+    ones that repeat a vertex. Returns empty triangles for a file without strips."""
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.find(b"end_header")
+    if end < 0:
+        raise MeshError(f"could not read mesh file {path!r}: no PLY header")
+    body = data[data.index(b"\n", end) + 1:]
+    elements, fmt = [], "ascii"
+    for line in data[:end].decode("ascii", errors="replace").splitlines():
+        words = line.split()
+        if words[:1] == ["format"]:
+            fmt = words[1]
+        elif words[:1] == ["element"]:
+            elements.append((words[1], int(words[2]), []))
+        elif words[:1] == ["property"] and elements:
+            elements[-1][2].append(words[1:])
+    if not any(name == "tristrips" for name, _, _ in elements):
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    try:
+        if fmt == "ascii":
+            values = iter(body.split())
+            V, strips = _ply_elements_ascii(elements, values)
+        else:
+            V, strips = _ply_elements_binary(elements, body, "<" if fmt == "binary_little_endian" else ">")
+    except (ValueError, KeyError, IndexError, StopIteration) as exc:
+        raise MeshError(f"could not read mesh file {path!r}: not a valid PLY file of triangle strips ({exc})") from None
+    return V, _strip_triangles(strips)
+
+
+def _ply_elements_ascii(elements, values):
+    V, strips = None, []
+    for name, count, props in elements:
+        rows = []
+        for _ in range(count):
+            row = []
+            for prop in props:
+                if prop[0] == "list":
+                    row.append([float(next(values)) for _ in range(int(next(values)))])
+                else:
+                    row.append(float(next(values)))
+            rows.append(row)
+        if name == "vertex":
+            names = [p[-1] for p in props]
+            V = np.array([[r[names.index(c)] for c in "xyz"] for r in rows], dtype=np.float64).reshape(-1, 3)
+        elif name == "tristrips":
+            strips += [np.asarray(r[0], dtype=np.int64) for r in rows]
+    return V, strips
+
+
+def _ply_elements_binary(elements, body, order):
+    V, strips, at = None, [], 0
+    for name, count, props in elements:
+        if all(p[0] != "list" for p in props):
+            dtype = np.dtype([(p[1], order + _PLY_TYPES[p[0]]) for p in props])
+            block = np.frombuffer(body, dtype=dtype, count=count, offset=at)
+            at += dtype.itemsize * count
+            if name == "vertex":
+                V = np.stack([block[c].astype(np.float64) for c in "xyz"], axis=1)
+            continue
+        for _ in range(count):
+            for prop in props:
+                if prop[0] != "list":
+                    at += np.dtype(_PLY_TYPES[prop[0]]).itemsize
+                    continue
+                size_type, item_type = np.dtype(order + _PLY_TYPES[prop[1]]), np.dtype(order + _PLY_TYPES[prop[2]])
+                k = int(np.frombuffer(body, dtype=size_type, count=1, offset=at)[0])
+                at += size_type.itemsize
+                items = np.frombuffer(body, dtype=item_type, count=k, offset=at).astype(np.int64)
+                at += item_type.itemsize * k
+                if name == "tristrips":
+                    strips.append(items)
+    return V, strips
+
+
+def _strip_triangles(strips):
+    """Triangles (m, 3) of triangle strips (-1 restarts a strip)."""
+    out = []
+    for strip in strips:
+        for piece in np.split(strip, np.flatnonzero(strip < 0)):
+            piece = piece[piece >= 0]
+            if piece.size < 3:
+                continue
+            k = np.arange(piece.size - 2)
+            tri = np.stack([piece[k], piece[k + 1], piece[k + 2]], axis=1)
+            tri[1::2] = tri[1::2][:, [1, 0, 2]]                  # every other triangle reversed
+            keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+            out.append(tri[keep])
+    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
 
 
 def _warn_polygons(path, count):

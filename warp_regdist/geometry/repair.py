@@ -1,19 +1,126 @@
-"""Meshes as users have them, made usable: vertices at one position merged into one.
+"""Meshes as users have them, made usable: vertices at one position merged, degenerate faces dropped,
+non-manifold edges cut, components split.
 
-Each function returns the new :class:`~warp_regdist.Mesh` and ``index`` (n,), the new vertex of
-every input vertex, so that values and sources move between the two numberings
-(``u_input = u_new[index]``).
+:func:`repair_mesh` returns the new :class:`~warp_regdist.Mesh`, whose ``input_index`` (n_in,) is the
+new vertex of every input vertex (so that values computed on it read back in the input's numbering as
+``u[mesh.input_index]``), and a :class:`Repair` that says what changed.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
 
+from ..errors import MeshError
+from ..tolerances import tolerances
 from .mesh import Mesh, duplicate_vertices
 
-__all__ = ["merge_duplicate_vertices"]
+__all__ = ["Repair", "repair_mesh", "merge_duplicate_vertices", "split_components"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Repair:
+    """What :func:`repair_mesh` changed: vertices merged into another at the same position, faces
+    dropped (a repeated corner, or zero area), non-manifold edges cut (the faces beyond a consistently
+    oriented pair detached along the edge, with copies of its two vertices), and the components left."""
+
+    merged_vertices: int = 0
+    dropped_faces: int = 0
+    cut_edges: int = 0
+    components: int = 1
+
+    def __str__(self):
+        parts = []
+        if self.merged_vertices:
+            parts.append(f"merged {self.merged_vertices} vertices into others at the same position")
+        if self.dropped_faces:
+            parts.append(f"dropped {self.dropped_faces} degenerate faces (a repeated corner or zero area)")
+        if self.cut_edges:
+            parts.append(f"cut the mesh along {self.cut_edges} non-manifold edges (faces beyond a pair detached)")
+        if not parts:
+            return "nothing to repair"
+        return "; ".join(parts) + f"; {self.components} connected component(s)"
+
+
+def repair_mesh(vertices, faces):
+    """A triangle :class:`~warp_regdist.Mesh` from ``vertices`` (n, 3) and ``faces`` (m, 3) that may have
+    vertices at one position, degenerate faces and non-manifold edges, and the :class:`Repair` made.
+
+    In this order: vertices at exactly one position are merged into the first of them (kept vertices
+    keep their order); faces with a repeated corner or an area <= ``tolerances.degenerate_element``
+    times their longest edge squared are dropped; each edge with more than two faces keeps one pair of
+    faces that run along it in opposite directions (the first such pair, else its first two faces), and
+    every other face at the edge gets its own copies of the edge's two vertices (appended), so that no
+    distance crosses the edge between them. Vertices referenced by no face are kept (+inf distance).
+    The mesh's ``input_index`` maps every input vertex to its vertex of the result.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    if F.ndim != 2 or F.shape[1] != 3 or V.ndim != 2 or V.shape[1] != 3:
+        raise MeshError(f"expected vertices (n, 3) and triangles (m, 3) to repair, got shapes {V.shape} and {F.shape}")
+    if not np.isfinite(V).all():
+        raise MeshError("expected finite vertex coordinates to repair, got NaN or inf")
+    F = F.astype(np.int64)
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise MeshError(f"expected face vertex indices in [0, {len(V) - 1}], got {int(F.min())}..{int(F.max())}")
+    used = np.zeros(len(V), dtype=bool)
+    used[F.ravel()] = True
+    pairs = duplicate_vertices(V, used)
+    lead = np.arange(len(V))
+    lead[pairs[:, 1]] = pairs[:, 0]
+    keep = lead == np.arange(len(V))
+    index = (np.cumsum(keep) - 1)[lead]
+    V, F = V[keep], index[F]
+    degenerate = _degenerate(V, F)
+    F = F[~degenerate]
+    V, F, cut = _cut_non_manifold_edges(V, F)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # the cut's copies of vertices are meant to lie where their originals do
+        mesh = Mesh(V, F)
+    mesh.input_index = index.astype(np.int64)
+    labels = mesh.components()
+    repair = Repair(merged_vertices=int(len(pairs)), dropped_faces=int(np.count_nonzero(degenerate)),
+                    cut_edges=cut, components=int(labels.max() + 1) if labels.size and labels.max() >= 0 else 0)
+    return mesh, repair
+
+
+def _degenerate(V, F):
+    """(m,) bool: faces with a repeated corner or an area <= degenerate_element x longest edge squared."""
+    S = np.sort(F, axis=1)
+    repeated = (S[:, 1:] == S[:, :-1]).any(axis=1)
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest = np.max([np.einsum("ij,ij->i", e, e) for e in (e1, e2, V[F[:, 2]] - V[F[:, 1]])], axis=0)
+    return repeated | (area <= tolerances.degenerate_element * longest)
+
+
+def _cut_non_manifold_edges(V, F):
+    """(V, F, count): every edge with more than two faces cut so that at most two remain on it."""
+    a, b = F.ravel(), np.roll(F, -1, axis=1).ravel()
+    key = np.minimum(a, b) * len(V) + np.maximum(a, b)
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    crowded = np.flatnonzero(counts[inverse.ravel()] > 2)          # halfedges on non-manifold edges
+    if crowded.size == 0:
+        return V, F, 0
+    V, F = list(V), F.copy()
+    groups = {}
+    for h in crowded:
+        groups.setdefault(int(inverse.ravel()[h]), []).append(int(h))
+    for halfedges in groups.values():
+        halfedges.sort()
+        forward = [h for h in halfedges if a[h] < b[h]]
+        backward = [h for h in halfedges if a[h] > b[h]]
+        stay = [forward[0], backward[0]] if forward and backward else halfedges[:2]
+        for h in halfedges:
+            if h in stay:
+                continue
+            f = h // 3
+            for vertex in (a[h], b[h]):
+                V.append(V[vertex])
+                F[f][F[f] == vertex] = len(V) - 1
+    return np.array(V), F, len(groups)
 
 
 def merge_duplicate_vertices(mesh):
@@ -41,3 +148,19 @@ def merge_duplicate_vertices(mesh):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # no duplicates are left to warn about
         return Mesh(mesh.vertices[keep], T), index.astype(np.int64)
+
+
+def split_components(mesh):
+    """Each connected component of ``mesh`` as its own Mesh, with the (n_c,) indices of its vertices in
+    ``mesh`` (vertices in no element are left out): a list of (Mesh, indices), largest first."""
+    labels = mesh.components()
+    out = []
+    for label in range(int(labels.max(initial=-1)) + 1):
+        vertices = np.flatnonzero(labels == label)
+        rank = np.full(mesh.n_vertices, -1)
+        rank[vertices] = np.arange(vertices.size)
+        elements = mesh.elements[labels[mesh.elements[:, 0]] == label]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", category=UserWarning)
+            out.append((Mesh(mesh.vertices[vertices], rank[elements]), vertices))
+    return sorted(out, key=lambda part: -part[1].size)

@@ -135,7 +135,7 @@ class AllPairsSolver:
                              f"(first: {np.flatnonzero(labels < 0)[0]})")
         if labels.max() > 0:
             raise ValueError(f"expected a connected mesh, got {labels.max() + 1} connected components "
-                             "(solve each component separately)")
+                             "(warp_regdist.split_components(mesh) gives each as a mesh to solve separately)")
         self.mesh, self.dtype, self.device = mesh, dtype, parse_device(device)
         self.triangulation = choose_triangulation(mesh, "dirichlet", triangulation)
         self.operators = ops = build_operators(mesh, self.triangulation)
