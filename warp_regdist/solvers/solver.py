@@ -288,7 +288,7 @@ class DistanceSolver:
             warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
                           f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
-        _warn_below_zero(self.operators, res.distance, source_sets)
+        _warn_below_zero(self.operators, res.distance, res.converged, source_sets)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
@@ -452,15 +452,15 @@ NEGATIVE = 1e-6
 """A distance below -NEGATIVE x its column's max is reported (:func:`_warn_below_zero`)."""
 
 
-def _warn_below_zero(ops, u, source_sets):
+def _warn_below_zero(ops, u, converged, source_sets):
     """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
-    column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
+    converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
     below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
     be represented), which the intrinsic triangulation makes rare but not impossible."""
     finite = np.where(np.isfinite(u), u, 0.0)
     top = finite.max(axis=0)
     low = finite.min(axis=0)
-    bad = np.flatnonzero(low < -NEGATIVE * np.maximum(top, 1e-300))
+    bad = np.flatnonzero((low < -NEGATIVE * np.maximum(top, 1e-300)) & converged)
     if bad.size == 0:
         return
     j = bad[np.argmin(low[bad] / top[bad])]
