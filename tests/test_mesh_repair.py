@@ -104,13 +104,13 @@ def test_the_command_line_names_repair_where_it_fixes_a_refusal(tmp_path, capsys
 def test_split_components_gives_each_component_as_a_mesh():
     a = trimesh.creation.icosphere(subdivisions=1)
     b = trimesh.creation.icosphere(subdivisions=2)
-    V = np.vstack([a.vertices, b.vertices + 5.0, [[9.0, 9.0, 9.0]]])
-    F = np.vstack([a.faces, b.faces + len(a.vertices)])
+    V = np.vstack([[[9.0, 9.0, 9.0]], a.vertices, b.vertices + 5.0])       # vertex 0 in no face
+    F = np.vstack([a.faces, b.faces + len(a.vertices)]) + 1
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         parts = wrd.split_components(wrd.Mesh(V, F))
-    assert [(m.n_vertices, idx[0]) for m, idx in parts] == [(162, 42), (42, 0)]
-    assert np.array_equal(parts[0][0].vertices, V[42:204])
+    assert [(m.n_vertices, idx[0]) for m, idx in parts] == [(162, 43), (42, 1)]
+    assert np.array_equal(parts[0][0].vertices, V[43:205])
     with pytest.raises(ValueError, match=r"expected a connected mesh, got 2 connected components \(warp_regdist\."
                                          r"split_components\(mesh\) gives each"):
-        wrd.AllPairsSolver(wrd.Mesh(V[:204], F))
+        wrd.AllPairsSolver(wrd.Mesh(V[1:], F - 1))

@@ -82,7 +82,7 @@ def repair_mesh(vertices, faces):
     mesh.input_index = index.astype(np.int64)
     labels = mesh.components()
     repair = Repair(merged_vertices=int(len(pairs)), dropped_faces=int(np.count_nonzero(degenerate)),
-                    cut_edges=cut, components=int(labels.max() + 1) if labels.size and labels.max() >= 0 else 0)
+                    cut_edges=cut, components=int(np.unique(labels[labels >= 0]).size))
     return mesh, repair
 
 
@@ -155,7 +155,7 @@ def split_components(mesh):
     ``mesh`` (vertices in no element are left out): a list of (Mesh, indices), largest first."""
     labels = mesh.components()
     out = []
-    for label in range(int(labels.max(initial=-1)) + 1):
+    for label in np.unique(labels[labels >= 0]):
         vertices = np.flatnonzero(labels == label)
         rank = np.full(mesh.n_vertices, -1)
         rank[vertices] = np.arange(vertices.size)
