@@ -7,6 +7,7 @@
     python benchmarks/all_pairs.py --dtypes float32 --accuracies 0.02 0.01 0.005 --no-baseline
     python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping   # accuracy= against exact minimizers
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping     # 300-500 vertices against long runs
+    python benchmarks/all_pairs.py --larger --cache /tmp/stopping --triangulations mesh intrinsic
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -29,7 +30,9 @@ With ``--larger``: the same at 0.01 and 0.005 on decimations of the shared meshe
 (``LARGER``), whose exact minimizers do not fit Clarabel, against 5,000 iterations of the symmetric
 splitting (research/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
 beside each run the same solve without the steepness test (``eps_excess=inf``, columns
-``unchecked_*``). Writes benchmarks/results/all_pairs_larger.csv.
+``unchecked_*``). With ``--triangulations mesh intrinsic`` each decimation is solved on both operators
+(the mesh's own and the intrinsic Delaunay ones), each against its own reference. Writes
+benchmarks/results/all_pairs_larger.csv.
 """
 
 import argparse
@@ -92,15 +95,18 @@ def exact_cases(cache):
     return cases
 
 
-def larger_cases(cache):
-    """Yield (name, mesh, alpha_hat, reference) of ``LARGER``, each reference computed once into ``cache``."""
+def larger_cases(cache, triangulation="mesh"):
+    """Yield (name, mesh, alpha_hat, reference) of ``LARGER`` on ``triangulation``, each reference computed
+    once into ``cache``."""
     import stopping
     from symmetric_all_pairs import SymmetricADMM
 
     for name, vertices, alpha_hat in LARGER:
         mesh = stopping.decimated(name, vertices)
         key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
-        reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat).reference(REFERENCE_ITERATIONS)[0])
+        key += "" if triangulation == "mesh" else f" {triangulation}"
+        reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat, triangulation).reference(
+            REFERENCE_ITERATIONS)[0])
         yield f"{name} decimated", mesh, alpha_hat, np.maximum(reference, 0.0)
 
 
@@ -111,14 +117,15 @@ def _run_columns(res, reference, prefix=""):
             f"{prefix}excess_pct": round(100 * res.gradient_excess, 3)}
 
 
-def accuracy_rows(cases, accuracies, baseline=False):
+def accuracy_rows(cases, accuracies, baseline=False, triangulation="mesh"):
     """One row per case and accuracy; with ``baseline`` also the run with ``eps_excess=inf``."""
     rows = []
     for name, mesh, alpha_hat, reference in cases:
-        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1)
+        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation=triangulation)
         for accuracy in accuracies:
             res = solver.solve(accuracy=accuracy)
             row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs", accuracy=accuracy,
+                       triangulation=triangulation,
                        **_run_columns(res, reference), seconds=round(res.seconds, 3),
                        ms_per_iteration=round(1e3 * res.seconds / res.iterations, 3), peak_rss_gb=round(peak_rss_gb(), 2))
             if baseline:
@@ -143,6 +150,8 @@ def main():
     parser.add_argument("--accuracy", action="store_true", help="accuracy= against exact minimizers of small meshes")
     parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
     parser.add_argument("--larger", action="store_true", help="accuracy= on LARGER against long symmetric runs")
+    parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
+                        help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
@@ -154,7 +163,9 @@ def main():
             write_csv(accuracy_rows(exact_cases(args.cache), ACCURACIES), ACCURACY_RESULTS)
             print(f"wrote {ACCURACY_RESULTS}")
         if args.larger:
-            write_csv(accuracy_rows(larger_cases(args.cache), LARGER_ACCURACIES, baseline=True), LARGER_RESULTS)
+            rows = [row for t in args.triangulations
+                    for row in accuracy_rows(larger_cases(args.cache, t), LARGER_ACCURACIES, baseline=True, triangulation=t)]
+            write_csv(rows, LARGER_RESULTS)
             print(f"wrote {LARGER_RESULTS}")
         return 0
     mesh = meshes.shared_mesh(args.mesh)

@@ -152,8 +152,8 @@ def masked_pcg(apply, precondition, R, U, inner_tol, max_iterations=100):
 class SymmetricADMM:
     """The prototype on one mesh: eigenvectors and the diagonal's system set up once."""
 
-    def __init__(self, mesh, alpha_hat):
-        ops = wrd.build_operators(mesh)
+    def __init__(self, mesh, alpha_hat, triangulation="mesh"):
+        ops = wrd.build_operators(mesh, triangulation)
         self.G = ops.grad.tocsr()
         self.D = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()
         self.AV, self.L, n = ops.vertex_volumes, ops.length_scale, mesh.n_vertices
