@@ -79,9 +79,13 @@ def stamp():
                 cores=os.cpu_count(), command=command)
 
 
+STARTED = stamp()
+"""The stamp of the process when it imported this module, before any measurement."""
+
+
 def write_csv(rows, path):
     """Rows (dicts) to a CSV whose columns are the union of their keys, in first-seen order, and
-    its stamp (:func:`stamp`) to ``PATH`` with ``.stamp.json`` for ``.csv``."""
+    its stamp (:data:`STARTED`, the code the run imported) to ``PATH`` with ``.stamp.json`` for ``.csv``."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="") as f:
@@ -89,7 +93,7 @@ def write_csv(rows, path):
         writer.writeheader()
         writer.writerows(rows)
     with open(_stamp_path(path), "w") as f:
-        json.dump(stamp(), f, indent=1)
+        json.dump(STARTED, f, indent=1)
 
 
 def markdown_table(rows):
@@ -166,13 +170,20 @@ def rendered_pages(root=ROOT):
 
 
 def publish(names):
-    """Copy benchmarks/results/NAME.csv and its stamp into docs/data/."""
+    """Copy benchmarks/results/NAME.csv and its stamp into docs/data/; a measurement of uncommitted code
+    is refused."""
     os.makedirs(DATA, exist_ok=True)
     for name in names:
         source = os.path.join(HERE, "results", f"{name}.csv")
         for path in (source, _stamp_path(source)):
             if not os.path.isfile(path):
                 raise SystemExit(f"report.py: expected {os.path.relpath(path, ROOT)}, got none (run the benchmark)")
+        with open(_stamp_path(source)) as f:
+            commit = json.load(f)["commit"]
+        if commit.endswith("+changes") or commit == "unknown":
+            raise SystemExit(f"report.py: expected {name} measured on a committed tree, got commit {commit} "
+                             f"(commit, rerun the benchmark, then publish)")
+        for path in (source, _stamp_path(source)):
             shutil.copy(path, DATA)
 
 
