@@ -1,10 +1,10 @@
 """Below zero: how often a single-source distance dips below 0 on meshes with obtuse triangles.
 
-    python benchmarks/below_zero.py --corpus DIR --decimate 300 1000 [--sources 0] [--names bunny ...]
+    python benchmarks/below_zero.py --corpus DIR --decimate 300 1000 [--sources 320] [--names bunny ...]
 
 Every mesh of DIR (as in benchmarks/real_meshes.py: loaded with ``repair=True``, its largest
 component, ``--max-vertices``) is decimated to each --decimate size by fast-simplification, and
-every vertex (or --sources of them, spread by farthest-point sampling) is a source of its own
+every vertex (at most --sources of them, spread by farthest-point sampling) is a source of its own
 column of ``solve_many``, at alpha_hat 0 and 0.05, on the intrinsic Delaunay triangulation (the
 default) and on the mesh's own. A column is *below zero* when its min is under -1e-6 of its max
 (the threshold of the solvers' warning). The table gives per mesh, alpha_hat and triangulation the
@@ -37,7 +37,7 @@ def run(folder, sizes, k, max_vertices, names):
     for name, mesh in corpus(folder, max_vertices, sizes):
         if not name.endswith(" decimated") or (names and name.split()[0] not in names):
             continue
-        sources = list(range(mesh.n_vertices)) if k == 0 else spread(mesh, k)
+        sources = list(range(mesh.n_vertices)) if mesh.n_vertices <= k else spread(mesh, k)
         obtuse = int(np.sum(largest_angles(mesh.vertices, mesh.elements) > 120))
         for alpha_hat in (0.0, 0.05):
             for tri in ("intrinsic", "mesh"):
@@ -63,7 +63,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--corpus", required=True, help="folder of mesh files")
     parser.add_argument("--decimate", type=int, nargs="+", default=[300, 1000])
-    parser.add_argument("--sources", type=int, default=0, help="sources per mesh (0: every vertex)")
+    parser.add_argument("--sources", type=int, default=320, help="at most this many sources per mesh (default 320)")
     parser.add_argument("--max-vertices", type=int, default=60_000)
     parser.add_argument("--names", nargs="*", default=[], help="only these meshes (file names without extension)")
     parser.add_argument("--output", default=RESULTS)
