@@ -72,7 +72,7 @@ def main():
     if not rows:
         sys.exit(f"expected mesh files in {args.corpus} above twice the --decimate sizes, got none")
     write_csv(rows, args.output)
-    print("\n".join(markdown_table(rows)))
+    print(markdown_table(rows))
     print(f"wrote {args.output}")
     return 0
 
