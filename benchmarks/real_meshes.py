@@ -12,11 +12,16 @@ error of the regularized distance at alpha_hat 0 on the intrinsic Delaunay trian
 default) and on the mesh's own, and of potpourri3d's heat method in its default and its robust
 (intrinsic Delaunay, mollified) mode; with the ADMM iterations, the solve's seconds and the lowest
 value of each solve (in % of its max: below 0 the discretization dips). Writes
-benchmarks/results/real_meshes.csv and prints a table.
+benchmarks/results/real_meshes.csv, and real_meshes_summary.csv with one row for the meshes as
+they are and one for the decimations (medians, and the sources where the regularized distance's
+error is at most the robust heat method's). ``--summarize`` rewrites the summary from an existing
+CSV, with that CSV's stamp.
 """
 
 import argparse
+import csv
 import glob
+import json
 import os
 import sys
 import time
@@ -27,9 +32,10 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-from report import markdown_table, write_csv  # noqa: E402
+from report import _stamp_path, markdown_table, write_csv  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "real_meshes.csv")
+SUMMARY = os.path.join(HERE, "results", "real_meshes_summary.csv")
 
 
 def corpus(folder, max_vertices, decimate):
@@ -135,17 +141,65 @@ def run(folder, k, max_vertices, decimate):
     return rows
 
 
+def summarize(rows):
+    """One row for the meshes as they are and one for the decimations: counts, median iterations and
+    errors, the sources whose max (mean) error is at most the robust heat method's, sources below 0."""
+    out = []
+    for label, decimated in (("as published", False), ("decimated", True)):
+        group = [r for r in rows if str(r["mesh"]).endswith(" decimated") == decimated]
+        if not group:
+            continue
+
+        def col(key):
+            return np.array([float(r[key]) for r in group])
+
+        def median(key):
+            return round(float(np.median(col(key))), 3)
+
+        out.append(dict(meshes=label, count=len({r["mesh"] for r in group}), sources=len(group),
+                        intrinsic_iterations=median("intrinsic_iterations"), mesh_iterations=median("mesh_iterations"),
+                        intrinsic_max_pct=median("intrinsic_max_pct"), intrinsic_mean_pct=median("intrinsic_mean_pct"),
+                        mesh_max_pct=median("mesh_max_pct"), mesh_mean_pct=median("mesh_mean_pct"),
+                        heat_robust_max_pct=median("heat_robust_max_pct"),
+                        heat_robust_mean_pct=median("heat_robust_mean_pct"), heat_max_pct=median("heat_max_pct"),
+                        max_at_most_robust=int(np.sum(col("intrinsic_max_pct") <= col("heat_robust_max_pct"))),
+                        mean_at_most_robust=int(np.sum(col("intrinsic_mean_pct") <= col("heat_robust_mean_pct"))),
+                        intrinsic_below_zero=int(np.sum(col("intrinsic_min_pct") < -1e-4)),
+                        mesh_below_zero=int(np.sum(col("mesh_min_pct") < -1e-4))))
+    return out
+
+
+def write_summary(rows, path, stamp_of=None):
+    """The summary of ``rows`` to ``path``; with ``stamp_of`` (a CSV) that CSV's stamp instead of this run's."""
+    summary = summarize(rows)
+    write_csv(summary, path)
+    if stamp_of is not None:
+        with open(_stamp_path(stamp_of)) as f:
+            stamp = json.load(f)
+        with open(_stamp_path(path), "w") as f:
+            json.dump(stamp, f, indent=1)
+    print(markdown_table(summary))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--corpus", required=True, help="folder of mesh files")
+    parser.add_argument("--corpus", help="folder of mesh files")
     parser.add_argument("--sources", type=int, default=2, help="sources per mesh (default: 2)")
     parser.add_argument("--max-vertices", type=int, default=60_000)
     parser.add_argument("--decimate", type=int, nargs="*", default=[], help="also each mesh decimated to N vertices")
     parser.add_argument("--output", default=RESULTS)
+    parser.add_argument("--summarize", metavar="CSV", help="only rewrite the summary of this results CSV")
     args = parser.parse_args()
+    if args.summarize:
+        with open(args.summarize, newline="") as f:
+            write_summary(list(csv.DictReader(f)), SUMMARY, stamp_of=args.summarize)
+        return
+    if not args.corpus:
+        parser.error("expected --corpus DIR (or --summarize CSV), got neither")
     rows = run(args.corpus, args.sources, args.max_vertices, args.decimate)
     write_csv(rows, args.output)
     print(markdown_table(rows))
+    write_summary(rows, SUMMARY)
 
 
 if __name__ == "__main__":
