@@ -135,6 +135,13 @@ def largest_basis_angles(basis):
     return np.max([between(b1, b2), between(b2, b0), between(b0, b1)], axis=0)
 
 
+def corner_angle(basis, corner):
+    """The interior angle, in degrees, at ``corner`` of one triangle given by its hat-function gradients (3, 3)."""
+    p, q = basis[(corner + 1) % 3], basis[(corner + 2) % 3]
+    cos = float(p @ q) / (np.linalg.norm(p) * np.linalg.norm(q))
+    return 180.0 - float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
 def mean_edge_length(vertices, faces):
     """Mean over the three sides of every triangle (m, 3) of |v_a - v_b| (an interior edge counts twice)."""
     P = vertices[faces]

@@ -27,7 +27,7 @@ import warp as wp
 from ..arguments import check_weight, parse_device, parse_workers
 from ..errors import ConvergenceWarning, MeshWarning
 from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators, choose_triangulation, largest_basis_angles
+from ..geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
 from ..geometry.regularizers import build_regularizer
 from ..kernels.lanes import SCALARS, lane_type, lane_width
 from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
@@ -468,13 +468,19 @@ def _warn_below_zero(ops, u, converged, source_sets):
     where = ""
     if ops.basis.shape[1] == 3:
         around = np.flatnonzero((ops.elements == i).any(axis=1))
-        angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
-        where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
+        at_source = [(corner_angle(ops.basis[e], c), int(ops.elements[e, c])) for e in around
+                     for c in range(3) if int(ops.elements[e, c]) in set(np.atleast_1d(source_sets[j]).tolist())]
+        if at_source:
+            angle, source = max(at_source)
+            where = f"; the triangle at that vertex and source {source} has a {angle:.0f}-degree angle at the source"
+        else:
+            angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
+            where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
     warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
                   f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
-                  f"{list(source_sets[j])[:4]}{where}): the discrete problem cannot represent the distance's cone "
-                  "there; a finer or better shaped mesh near the sources avoids it (docs/concepts.md)", MeshWarning,
-                  stacklevel=4)
+                  f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "
+                  "obtuse angle there must fall below 0; a finer or better shaped mesh near the sources avoids it "
+                  "(docs/real-meshes.md)", MeshWarning, stacklevel=4)
 
 
 def _printer(callback):
