@@ -197,8 +197,12 @@ def test_vjp_refusals():
     with pytest.raises(ValueError, match="expected a converged solve to polish, got 1 of 1 columns not converged"):
         short.polish()
     point = solver.solve(points=[(3, (0.2, 0.3, 0.5))])
-    with pytest.raises(ValueError, match="expected a result of DistanceSolver.solve or solve_many from vertex sources"):
-        point.vjp(np.ones(n))
+    with pytest.raises(ValueError, match=r"expected grad_u of shape \(800,\) \(the distance's\), got \(80[1-9]\d*,\)"):
+        point.vjp(np.ones(point.refined_mesh.n_vertices))
+    curve = solver.solve(curve=[(3, (0.2, 0.3, 0.5)), (3, (0.5, 0.3, 0.2))])
+    with pytest.raises(ValueError, match="expected a result of DistanceSolver.solve or solve_many from vertices or "
+                                         "points to differentiate, got one from curves"):
+        curve.vjp(np.ones(n))
     hessian = wrd.DistanceSolver(mesh, 0.05, regularizer="hessian", workers=1).solve([0])
     with pytest.raises(ValueError, match="expected the Dirichlet regularizer on a mesh to differentiate, got 'hessian'"):
         hessian.vjp(np.ones(n))
@@ -249,3 +253,61 @@ def test_a_stalled_final_level_falls_back_to_the_last_converged_one(monkeypatch)
     direct = wrd.DistanceSolver(mesh, 0.05, workers=1).solve([0], gradient_smoothing=1e-5).vjp(b)
     assert fallback.smoothing == pytest.approx(1e-5) and direct.smoothing == pytest.approx(1e-5)
     np.testing.assert_allclose(fallback.vertices, direct.vertices, rtol=1e-6, atol=1e-8 * np.abs(direct.vertices).max())
+
+
+def _refined_smoothed_value(mesh, alpha_hat, faces, bary, b, start):
+    """b . u_mu on the original vertices, u_mu of the smoothed problem on ``mesh`` refined at the points
+    (faces, bary) with those points as sources (Newton from ``start`` on the refined mesh)."""
+    from warp_regdist.geometry.boundary_refinement import refine_boundary
+    from warp_regdist.geometry.surface_points import refine
+
+    R = (refine if mesh.element_dim == 2 else refine_boundary)(mesh, np.asarray(faces), np.asarray(bary))
+    solver = wrd.DistanceSolver(R.mesh, alpha_hat, workers=1)
+    free = np.ones(R.mesh.n_vertices, dtype=bool)
+    free[R.point_vertices] = False
+    u = np.zeros(R.mesh.n_vertices)
+    u[free] = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing,
+                              free).minimize(start[free])[0]
+    return b @ u[:mesh.n_vertices]
+
+
+@pytest.mark.parametrize("case", ["decimated spot", "tetrahedral cube"])
+def test_vjp_through_point_sources_matches_central_differences(case):
+    """Points inside faces and on an edge, with the feet of their perpendiculars: the gradient with
+    respect to the positions (the points moving with their faces) and to one point's barycentric
+    coordinates, against central differences of the smoothed problem on the re-refined mesh."""
+    mesh = spot955() if case == "decimated spot" else cube_mesh()
+    faces = [100, 400, 40] if case == "decimated spot" else [3, 50, 90]
+    bary = np.array([[0.2, 0.5, 0.3], [0.6, 0.3, 0.1], [0.0, 0.45, 0.55]])
+    rng = np.random.default_rng(7)
+    b = rng.standard_normal(mesh.n_vertices)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.MeshWarning)
+        res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve(points=list(zip(faces, bary)))
+    g = res.vjp(b)
+    assert g.points.shape == (3, 3) and g.vertices.shape == (mesh.n_vertices, 3)
+    assert res.refined_mesh.n_vertices > mesh.n_vertices + 3         # the feet were inserted too
+    start = g.refined_smoothed_distance
+    h = 1e-7
+    D = rng.standard_normal(mesh.vertices.shape)
+    V, F = mesh.vertices, mesh.elements
+    fd = (_refined_smoothed_value(wrd.Mesh(V + h * D, F), 0.05, faces, bary, b, start)
+          - _refined_smoothed_value(wrd.Mesh(V - h * D, F), 0.05, faces, bary, b, start)) / (2 * h)
+    assert (g.vertices * D).sum() == pytest.approx(fd, rel=1e-5)
+    db = np.array([0.3, -0.1, -0.2])
+    fd = (_refined_smoothed_value(mesh, 0.05, faces, bary + h * np.array([db, 0 * db, 0 * db]), b, start)
+          - _refined_smoothed_value(mesh, 0.05, faces, bary - h * np.array([db, 0 * db, 0 * db]), b, start)) / (2 * h)
+    assert g.points[0] @ db == pytest.approx(fd, rel=1e-5)
+    polished = res.polish()
+    np.testing.assert_allclose(polished.refined_distance, g.refined_smoothed_distance, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(polished.distance, g.smoothed_distance, rtol=1e-10, atol=1e-12)
+
+
+def test_solve_many_from_points_gives_each_column_its_points_gradient():
+    mesh = hole_mesh()
+    res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve_many(points=[[(3, (0.2, 0.3, 0.5))],
+                                                                       [(40, (0.1, 0.1, 0.8)), (90, (0.5, 0.5, 0.0))]])
+    g = res.vjp(np.ones((mesh.n_vertices, 2)))
+    assert [p.shape for p in g.points] == [(1, 3), (2, 3)]
+    assert g.vertices.shape == (mesh.n_vertices, 3) and g.smoothed_distance.shape == (mesh.n_vertices, 2)
+    assert g.refined_vertices.shape == (res.refined_mesh.n_vertices, 3)

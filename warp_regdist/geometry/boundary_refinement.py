@@ -29,6 +29,7 @@ def refine_boundary(mesh, faces, bary, chains=(), feet=None):
     F, owner = boundary_faces(mesh)
     R = refine(Mesh(mesh.vertices, F), faces, bary, chains, feet)
     X = list(R.mesh.vertices)
+    origins = list(R.origins)
     T = mesh.elements
     split = R.edge_vertices
     cut = {}                                                       # sorted corners -> triangles
@@ -56,6 +57,7 @@ def refine_boundary(mesh, faces, bary, chains=(), feet=None):
             bases = [face for face in T[t][_TET_FACES] if apex not in face]
         else:
             X.append(np.mean([X[v] for v in corners], axis=0))
+            origins.append(("centroid", corners))
             apex, bases = len(X) - 1, list(T[t][_TET_FACES])
         triangles = []
         for face in bases:
@@ -69,7 +71,8 @@ def refine_boundary(mesh, faces, bary, chains=(), feet=None):
             parent.append(t)
     elements = np.concatenate([T[keep], np.asarray(new, dtype=np.int64).reshape(-1, 4)])
     refined = Mesh(np.asarray(X), elements)
-    return dataclasses.replace(R, mesh=refined, parent=np.concatenate([np.flatnonzero(keep), parent]).astype(np.int64))
+    return dataclasses.replace(R, mesh=refined, parent=np.concatenate([np.flatnonzero(keep), parent]).astype(np.int64),
+                               origins=origins)
 
 
 def _triangulate(key, split, X):

@@ -29,7 +29,7 @@ from ..tolerances import tolerances
 from .face_triangulation import FaceTriangulation
 from .mesh import Mesh, boundary_surface
 
-__all__ = ["surface_points", "check_surface_points", "refine", "Refinement", "Incidence", "snapped"]
+__all__ = ["surface_points", "check_surface_points", "refine", "refinement_vjp", "Refinement", "Incidence", "snapped"]
 
 _CHUNK = 4096
 """xyz points whose candidate faces :func:`surface_points` gathers at once."""
@@ -162,6 +162,11 @@ class Refinement:
         The original face of every refined face.
     edge_vertices : dict
         (lo, hi) original edge (lo < hi) -> the new vertices on it, in order from lo.
+    origins : list of tuple
+        How each new vertex n_original + q was placed, for :func:`refinement_vjp`: ("face", point,
+        corners), ("side", point, a, c, corner a, corner c) at (1 - t) v_a + t v_c with t the point's
+        barycentric share of c, ("foot", x vertex, a, c) the foot of the perpendicular from a vertex onto
+        edge a-c, ("centroid", corners) of a split tetrahedron, or ("lifted",) where a curve crosses itself.
     """
 
     mesh: Mesh
@@ -171,6 +176,7 @@ class Refinement:
     curve_vertices: list
     parent: np.ndarray
     edge_vertices: dict
+    origins: list
 
 
 def refine(mesh, faces, bary, chains=(), feet=None):
@@ -185,32 +191,35 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     snap = tolerances.point_snap
     incidence = Incidence(T, n)
     positions = [p for p in V]
+    origins = []
     edge_points = {}                              # (lo, hi) -> [[t, vertex], ...]
     face_points = {}                              # face -> [[bary, vertex], ...]
 
-    def new_vertex(x):
+    def new_vertex(x, origin):
         positions.append(x)
+        origins.append(origin)
         return len(positions) - 1
 
-    def edge_vertex(a, c, t):
-        """The vertex at (1 - t) v_a + t v_c on edge a-c (a new one unless one is within snap)."""
+    def edge_vertex(a, c, t, origin):
+        """The vertex at (1 - t) v_a + t v_c on edge a-c (a new one, placed by ``origin``, unless one is
+        within snap)."""
         lo, hi, t = (a, c, t) if a < c else (c, a, 1.0 - t)
         bucket = edge_points.setdefault((lo, hi), [])
         hit = next((e for e in bucket if abs(e[0] - t) <= snap), None)
         if hit is None:
-            hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi])]
+            hit = [t, new_vertex((1 - t) * V[lo] + t * V[hi], origin)]
             bucket.append(hit)
             incidence.on_edge[hit[1]] = (lo, hi)
         return hit[1]
 
     def add_feet(x, f):
-        """The feet of the perpendiculars from x onto the sides of face f, where they fall inside."""
+        """The feet of the perpendiculars from vertex x onto the sides of face f, where they fall inside."""
         for s in range(3):
             a, c = T[f, s], T[f, (s + 1) % 3]
             e = V[c] - V[a]
-            t = (x - V[a]) @ e / (e @ e)
-            if _FOOT_MARGIN < t < 1 - _FOOT_MARGIN and np.linalg.norm(x - V[a] - t * e) > snap * np.sqrt(e @ e):
-                edge_vertex(a, c, t)
+            t = (positions[x] - V[a]) @ e / (e @ e)
+            if _FOOT_MARGIN < t < 1 - _FOOT_MARGIN and np.linalg.norm(positions[x] - V[a] - t * e) > snap * np.sqrt(e @ e):
+                edge_vertex(a, c, t, ("foot", x, a, c))
 
     on_curves = {i for chain in chains for i in chain}
     if feet is None:
@@ -225,18 +234,18 @@ def refine(mesh, faces, bary, chains=(), feet=None):
         if kind == "side":
             a, c = corners[(k + 1) % 3], corners[(k + 2) % 3]
             t = b[(k + 2) % 3] / (b[(k + 1) % 3] + b[(k + 2) % 3])
-            vertex_of[i] = edge_vertex(a, c, t)
+            vertex_of[i] = edge_vertex(a, c, t, ("side", i, a, c, (k + 1) % 3, (k + 2) % 3))
             if feet[i]:
                 for g in incidence.edge(a, c):
-                    add_feet(positions[vertex_of[i]], g)
+                    add_feet(vertex_of[i], g)
             continue
         bucket = face_points.setdefault(int(f), [])
         hit = next((e for e in bucket if np.abs(e[0] - b).max() <= snap), None)
         if hit is None:
-            hit = [b, new_vertex(b @ V[corners])]
+            hit = [b, new_vertex(b @ V[corners], ("face", i, corners))]
             bucket.append(hit)
             if feet[i]:
-                add_feet(positions[hit[1]], f)
+                add_feet(hit[1], f)
         vertex_of[i] = hit[1]
     requested = np.einsum("pi,pij->pj", bary, V[T[faces]])
     sources = set(vertex_of.tolist())
@@ -278,7 +287,7 @@ def refine(mesh, faces, bary, chains=(), feet=None):
             chain = ft.recover(local[a], local[c])
             for idx, label in enumerate(ft.labels):
                 if label is None:                      # where the curve crosses itself
-                    ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]))
+                    ft.labels[idx] = new_vertex(_lift(ft.xy[idx], P, V[corners]), ("lifted",))
             chain_points[(a, c)] = [ft.labels[idx] for idx in chain]
         if len(ft.triangles) > 1:
             keep[f] = False
@@ -301,7 +310,57 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     return Refinement(mesh=refined, n_original=n, point_vertices=vertex_of,
                       displacement=np.linalg.norm(X[vertex_of] - requested, axis=1), curve_vertices=curves,
                       parent=parents, edge_vertices={key: [v for _, v in sorted(bucket)] for key, bucket in
-                                                     edge_points.items()})
+                                                     edge_points.items()}, origins=origins)
+
+
+def refinement_vjp(refinement, vertices, bary, grad_positions):
+    """Pull the gradient of a loss with respect to the refined mesh's positions (n', 3) back to the
+    original ``vertices`` (n, 3) and the points' barycentric coordinates ``bary`` (p, 3) as given to
+    :func:`refine`, the points staying at their barycentric coordinates: ((n, 3), (p, 3)).
+
+    New vertices are placed in order, each from original vertices and earlier new ones, so the
+    pullback runs over them in reverse: a face point x = b . v_corners, a point on a side
+    x = (1 - t) v_a + t v_c with t = b_c / (b_a + b_c), a foot x = v_a + s e with e = v_c - v_a and
+    s = (y - v_a) . e / |e|^2 for the vertex y it drops from."""
+    n = refinement.n_original
+    V = np.asarray(vertices, dtype=np.float64)
+    X = refinement.mesh.vertices
+    grad = np.array(grad_positions, dtype=np.float64)
+    gV, gb = grad[:n].copy(), np.zeros((len(bary), 3))
+    for q in range(len(refinement.origins) - 1, -1, -1):
+        origin, g = refinement.origins[q], grad[n + q]
+        if origin[0] == "face":
+            _, i, corners = origin
+            gV[corners] += bary[i][:, None] * g
+            gb[i] += V[corners] @ g
+        elif origin[0] == "side":
+            _, i, a, c, ka, kc = origin
+            ba, bc = bary[i][ka], bary[i][kc]
+            t = bc / (ba + bc)
+            gV[a] += (1.0 - t) * g
+            gV[c] += t * g
+            dt = (V[c] - V[a]) @ g                       # dL/dt
+            gb[i, ka] -= dt * bc / (ba + bc) ** 2
+            gb[i, kc] += dt * ba / (ba + bc) ** 2
+        elif origin[0] == "foot":
+            _, y, a, c = origin
+            e, w = V[c] - V[a], X[y] - V[a]
+            ee = e @ e
+            s = (w @ e) / ee
+            ds = g @ e                                   # dL/ds; x = v_a + s e
+            # s = (w . e) / (e . e): ds/dw = e / ee, ds/de = (w - 2 s e) / ee
+            gw, ge = ds * e / ee, s * g + ds * (w - 2.0 * s * e) / ee
+            if y < n:
+                gV[y] += gw
+            else:
+                grad[y] += gw                            # a new vertex placed earlier: pulled back later
+            gV[a] += g - gw - ge
+            gV[c] += ge
+        elif origin[0] == "centroid":
+            gV[list(origin[1])] += g / len(origin[1])
+        else:
+            raise ValueError("expected points only to differentiate through, got a curve that crosses itself")
+    return gV, gb
 
 
 def _plane_frame(corners):

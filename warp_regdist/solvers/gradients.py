@@ -72,6 +72,11 @@ class Gradients(OptimizeResult):
     newton_iterations : int
         Newton steps summed over columns.
     seconds : float
+    points : (p, 3) ndarray or list of them
+        After a solve from points: dL/db for each point's barycentric coordinates b on its face (the
+        point moving with the face's vertices in ``vertices``); a list with one array per column after
+        ``solve_many``. The refined mesh's ``refined_vertices`` (n', 3) and ``refined_smoothed_distance``
+        come with it.
     """
 
 

@@ -59,18 +59,20 @@ class DistanceResult(OptimizeResult):
         The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
-    def _attach(self, solver, source_sets, options=None):
-        """Keep the solver, the vertex source sets and the options of the solve for :meth:`vjp` (an
-        attribute, not a key)."""
-        object.__setattr__(self, "_problem", (solver, source_sets, options))
+    def _attach(self, solver, source_sets, options=None, surface=None):
+        """Keep the solver, the vertex source sets, the options of the solve and, for points, the
+        :class:`~warp_regdist.solvers.sources.SurfaceSources` whose refined mesh it ran on, for :meth:`vjp`
+        and :meth:`polish` (an attribute, not a key)."""
+        object.__setattr__(self, "_problem", (solver, source_sets, options, surface))
 
     def _smoothable(self, verb):
-        """(solver, source sets, distance (n, k), one column?) after the checks that :meth:`vjp` and
-        :meth:`polish` share (``verb`` names the operation in their messages)."""
-        solver, source_sets, options = vars(self).get("_problem", (None, None, None))
+        """(solver, source sets, distance (n', k) on the solver's mesh, one column?, mu_hat, surface
+        sources or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the
+        operation in their messages)."""
+        solver, source_sets, options, surface = vars(self).get("_problem", (None, None, None, None))
         if solver is None:
-            raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertex sources to "
-                             f"{verb}, got one from points or curves (or a copy)")
+            raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertices or points to "
+                             f"{verb}, got one from curves (or a copy)")
         if solver.regularizer.name != "dirichlet" or solver.mesh.element_weights is not None:
             what = "a point cloud" if solver.mesh.element_weights is not None else repr(solver.regularizer.name)
             raise ValueError(f"expected the Dirichlet regularizer on a mesh to {verb}, got {what}")
@@ -78,10 +80,10 @@ class DistanceResult(OptimizeResult):
         if not converged.all():
             raise ValueError(f"expected a converged solve to {verb}, got {np.count_nonzero(~converged)} of "
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
-        distance = np.asarray(self.distance)
+        distance = np.asarray(self.distance if surface is None else self.refined_distance)
         one = distance.ndim == 1
         mu_hat = (solver.options if options is None else options).gradient_smoothing
-        return solver, source_sets, distance[:, None] if one else distance, one, mu_hat
+        return solver, source_sets, distance[:, None] if one else distance, one, mu_hat, surface
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
@@ -93,22 +95,39 @@ class DistanceResult(OptimizeResult):
         Returns a :class:`~warp_regdist.Gradients`: ``vertices`` (n, 3) dL/dx,
         ``alpha_hat`` dL/dalpha_hat, ``smoothed_distance`` (the minimizer whose derivative it is)
         and ``smoothing_change`` (its distance from ``distance``, in units of the max distance).
+        After a solve from points also ``points``: dL/d(barycentric coordinates) of each point
+        ((p, 3) after ``solve``, a list of them after ``solve_many``), the points moving with their
+        face, and ``refined_vertices`` (n', 3) on the refined mesh.
         """
         from .gradients import vector_jacobian_product
 
-        solver, source_sets, distance, one, mu_hat = self._smoothable("differentiate")
+        solver, source_sets, distance, one, mu_hat, surface = self._smoothable("differentiate")
+        n = np.asarray(self.distance).shape[0]
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
         except (TypeError, ValueError):
             grad = None
-        shape = distance.shape[:1] if one else distance.shape
+        shape = (n,) if one else (n, distance.shape[1])
         if grad is None:
             raise ValueError(f"expected grad_u as a real array of shape {shape}, got {type(grad_u).__name__}")
         if grad.shape != shape:
             raise ValueError(f"expected grad_u of shape {shape} (the distance's), got {grad.shape}")
         if not np.all(np.isfinite(grad)):
             raise ValueError("expected finite grad_u, got NaN or inf")
-        out = vector_jacobian_product(solver, distance, source_sets, grad[:, None] if one else grad, mu_hat)
+        grad = grad[:, None] if one else grad
+        if surface is not None:      # the new vertices of the refined mesh are no outputs: zero
+            grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
+        out = vector_jacobian_product(solver, distance, source_sets, grad, mu_hat)
+        if surface is not None:
+            from ..geometry.surface_points import refinement_vjp
+
+            out["refined_vertices"] = out.vertices
+            out["vertices"], gb = refinement_vjp(surface.refinement, solver.mesh.vertices[:n], surface.bary,
+                                                 out.vertices)
+            points = [gb[own] for own in surface.own_points]
+            out["points"] = points[0] if one else points
+            out["refined_smoothed_distance"] = out.smoothed_distance[:, 0] if one else out.smoothed_distance
+            out["smoothed_distance"] = out.smoothed_distance[:n]
         if one:
             out["smoothed_distance"] = out.smoothed_distance[:, 0]
         return out
@@ -120,12 +139,12 @@ class DistanceResult(OptimizeResult):
         solve's time. ``polish_change`` (float or (k,)) is how far it moved, in units of the max
         distance: the ADMM's own error, to within the smoothing's. ``error_estimate`` is dropped;
         ``seconds`` adds the polish's time.
-        Vertex sources and the Dirichlet regularizer only, like :meth:`vjp`.
+        Vertex and point sources and the Dirichlet regularizer only, like :meth:`vjp`.
         """
         from .gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        solver, source_sets, distance, one, mu_hat = self._smoothable("polish")
+        solver, source_sets, distance, one, mu_hat, surface = self._smoothable("polish")
         out = DistanceResult(self)
         out._attach(*vars(self)["_problem"])
         del out["error_estimate"]
@@ -133,6 +152,9 @@ class DistanceResult(OptimizeResult):
                      for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])
+        if surface is not None:
+            out["refined_distance"] = polished[:, 0] if one else polished
+            polished = polished[:np.asarray(self.distance).shape[0]]
         out["distance"], out["polish_change"] = (polished[:, 0], change[0].item()) if one else (polished, change)
         out["seconds"] = self.seconds + time.perf_counter() - t0
         return out

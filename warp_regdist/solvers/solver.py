@@ -239,9 +239,13 @@ class DistanceSolver:
             k = check_surface_batch(source_sets, points, curves, closed, initial)
             sets = None if source_sets is None else [self.source_mask(s, j)[0] for j, s in enumerate(source_sets)]
             S = surface_sources(self.mesh, k, sets, points, curves, closed)
-            res = self._refined_solver(S)._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None,
-                                                      None, False, callback, options)
-            res._attach(None, None)   # no vjp: the refined mesh's new vertices move with the points
+            refined = self._refined_solver(S)
+            res = refined._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None, None, False,
+                                      callback, options)
+            if curves is None:   # vjp and polish on the refined mesh, pulled back through its new vertices
+                res._attach(refined, list(S.sets), options, S)
+            else:
+                res._attach(None, None)
             return refined_result(res, S, self.mesh.n_vertices, closed)
         if source_sets is None:
             raise ValueError("expected sources, points or a curve, got none")

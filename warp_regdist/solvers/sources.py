@@ -60,10 +60,16 @@ class SurfaceSources:
         Column j's curves, each as its chain of refined vertices.
     key : str
         Identifies the refined problem (for reusing its solver).
+    bary : (P, 3) ndarray
+        The barycentric coordinates of every point given to the refinement (the columns' points, then
+        their curves' points).
+    own_points : list of (p_j,) ndarray of int64
+        Column j's points among them.
     """
 
-    def __init__(self, refinement, sets, curves, key):
+    def __init__(self, refinement, sets, curves, key, bary, own_points):
         self.refinement, self.sets, self.curves, self.key = refinement, sets, curves, key
+        self.bary, self.own_points = bary, own_points
 
     def signs(self, j):
         """(n',) +1 / -1 on the two sides of column j's closed curves (-1 on the left of their
@@ -127,7 +133,7 @@ def surface_sources(mesh, k, sets, points, curves, closed):
         s += [R.curve_vertices[c] for c in own_curves[j]]
         out_sets.append(np.unique(np.concatenate(s)))
         out_curves.append([R.curve_vertices[c] for c in own_curves[j]])
-    return SurfaceSources(R, out_sets, out_curves, R.mesh.sha256())
+    return SurfaceSources(R, out_sets, out_curves, R.mesh.sha256(), B, own_points)
 
 
 def check_surface_batch(source_sets, points, curves, closed, initial):
