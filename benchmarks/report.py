@@ -64,7 +64,7 @@ def stamp():
         commit = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
         dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no", "--",
-                                "warp_regdist", "kernels", "benchmarks"], capture_output=True, text=True).stdout.strip()
+                                "warp_regdist", "kernels", "benchmarks", "research"], capture_output=True, text=True).stdout.strip()
         commit += "+changes" if dirty else ""
     except OSError:
         commit = "unknown"

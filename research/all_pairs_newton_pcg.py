@@ -1,11 +1,11 @@
 """All pairs: PCG on the Newton systems of two second-order methods (issue 24, a prototype).
 
-    python benchmarks/all_pairs_newton_pcg.py --cache /tmp/stopping --meshes "cat_rr decimated 80"
+    python research/all_pairs_newton_pcg.py --cache /tmp/stopping --meshes "cat_rr decimated 80"
 
-From --admm iterations of the exact-step symmetric ADMM (benchmarks/symmetric_all_pairs.py, rho = 8 L),
+From --admm iterations of the exact-step symmetric ADMM (research/symmetric_all_pairs.py, rho = 8 L),
 two Newton paths over x = U[i, j], i < j, every Newton system solved by sparse LU:
 
-    barrier  the polish of benchmarks/all_pairs_polish.py (mu_hat 1e-3 ... 1e-6, from max |g| = 0.95);
+    barrier  the polish of research/all_pairs_polish.py (mu_hat 1e-3 ... 1e-6, from max |g| = 0.95);
     ssnal    a semismooth Newton augmented Lagrangian (:class:`AugmentedLagrangian`), from the
              ADMM's U and its multipliers Y.
 

@@ -1,8 +1,8 @@
 """All pairs: the symmetric ADMM's tail replaced by a barrier Newton polish (issue 24, a prototype).
 
-    python benchmarks/all_pairs_polish.py --cache /tmp/stopping --admm 150 200 --meshes "cat_rr decimated 80"
+    python research/all_pairs_polish.py --cache /tmp/stopping --admm 150 200 --meshes "cat_rr decimated 80"
 
-Runs ``K`` iterations of the exact-step symmetric ADMM of benchmarks/symmetric_all_pairs.py (rho = 8 L),
+Runs ``K`` iterations of the exact-step symmetric ADMM of research/symmetric_all_pairs.py (rho = 8 L),
 then Newton's method on the smoothed symmetric problem over the n(n-1)/2 entries of U above the
 diagonal (U symmetric, zero diagonal):
 

@@ -1,8 +1,8 @@
 """All pairs with U symmetric in the primal: iterations to the exact minimizer (issue 24, a prototype).
 
-    python benchmarks/symmetric_all_pairs.py --cache /tmp/stopping            # rho = 8 L
-    python benchmarks/symmetric_all_pairs.py --cache /tmp/stopping --rho 4 8 16
-    python benchmarks/symmetric_all_pairs.py --beside-package cat_rr --iterations 500
+    python research/symmetric_all_pairs.py --cache /tmp/stopping            # rho = 8 L
+    python research/symmetric_all_pairs.py --cache /tmp/stopping --rho 4 8 16
+    python research/symmetric_all_pairs.py --beside-package cat_rr --iterations 500
 
 A dense numpy prototype of a 2-block ADMM for Algorithm 2's problem, not the package's
 splitting: U is symmetric with a zero diagonal by construction, only the columns' gradients

@@ -1,7 +1,7 @@
 """Fingerprints of solver outputs, to show that a refactoring changed no bit.
 
-    python benchmarks/bit_identity.py --write before.json       # on the commit before
-    python benchmarks/bit_identity.py --compare before.json     # after: exit 1 on any difference
+    python tools/bit_identity.py --write before.json       # on the commit before
+    python tools/bit_identity.py --compare before.json     # after: exit 1 on any difference
 
 Cases: single source (spot, float64 and float32), a batch of 9 columns in one and in two
 processes, the Hessian and the vector-field regularizers, a tetrahedral cube from its

@@ -1,7 +1,7 @@
 """Stress test of the parallel CPU paths (2 workers) while busy-looping processes load every core.
 
-    python benchmarks/stress_workers.py                  # 20 runs of each path, cat_rr all pairs
-    python benchmarks/stress_workers.py --runs 5 --iterations 3
+    python tools/stress_workers.py                  # 20 runs of each path, cat_rr all pairs
+    python tools/stress_workers.py --runs 5 --iterations 3
 
 Each run is its own child process (a segmentation fault kills the child, not this script):
 ``all_pairs`` on cat_rr (float32, ``workers=2``, a few ADMM iterations: the threads start in the
