@@ -58,8 +58,8 @@ def print_result(row):
 
 
 def stamp():
-    """Where and when a measurement ran: date, commit (with "+changes" when the package, its kernels or
-    the benchmarks differ from it), CPU model, core count, command."""
+    """Where and when a measurement ran: date, commit (with "+changes" when the package, its kernels,
+    the benchmarks or the research scripts differ from it), CPU model, core count, command."""
     try:
         commit = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
