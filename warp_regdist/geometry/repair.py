@@ -68,10 +68,7 @@ def repair_mesh(vertices, faces):
     used = np.zeros(len(V), dtype=bool)
     used[F.ravel()] = True
     pairs = duplicate_vertices(V, used)
-    lead = np.arange(len(V))
-    lead[pairs[:, 1]] = pairs[:, 0]
-    keep = lead == np.arange(len(V))
-    index = (np.cumsum(keep) - 1)[lead]
+    keep, index = _merge_map(len(V), pairs)
     V, F = V[keep], index[F]
     degenerate = _degenerate(V, F)
     F = F[~degenerate]
@@ -86,10 +83,24 @@ def repair_mesh(vertices, faces):
     return mesh, repair
 
 
+def _merge_map(n, pairs):
+    """(keep (n,) bool, index (n,) int64) merging each pair (i, j) of ``pairs`` (k, 2) into its first vertex:
+    the vertices kept, and each vertex's index among them."""
+    lead = np.arange(n)
+    lead[pairs[:, 1]] = pairs[:, 0]
+    keep = lead == np.arange(n)
+    return keep, (np.cumsum(keep) - 1)[lead].astype(np.int64)
+
+
+def _repeated_corner(F):
+    """(m,) bool: elements with a vertex twice."""
+    S = np.sort(F, axis=1)
+    return (S[:, 1:] == S[:, :-1]).any(axis=1)
+
+
 def _degenerate(V, F):
     """(m,) bool: faces with a repeated corner or an area <= degenerate_element x longest edge squared."""
-    S = np.sort(F, axis=1)
-    repeated = (S[:, 1:] == S[:, :-1]).any(axis=1)
+    repeated = _repeated_corner(F)
     e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
     area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
     longest = np.max([np.einsum("ij,ij->i", e, e) for e in (e1, e2, V[F[:, 2]] - V[F[:, 1]])], axis=0)
@@ -136,18 +147,12 @@ def merge_duplicate_vertices(mesh):
     """
     if not isinstance(mesh, Mesh):
         raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
-    pairs = duplicate_vertices(mesh.vertices)
-    lead = np.arange(mesh.n_vertices)
-    lead[pairs[:, 1]] = pairs[:, 0]
-    keep = lead == np.arange(mesh.n_vertices)
-    rank = np.cumsum(keep) - 1
-    index = rank[lead]
+    keep, index = _merge_map(mesh.n_vertices, duplicate_vertices(mesh.vertices))
     T = index[mesh.elements]
-    S = np.sort(T, axis=1)
-    T = T[~(S[:, 1:] == S[:, :-1]).any(axis=1)]
+    T = T[~_repeated_corner(T)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # no duplicates are left to warn about
-        return Mesh(mesh.vertices[keep], T), index.astype(np.int64)
+        return Mesh(mesh.vertices[keep], T), index
 
 
 def split_components(mesh):
