@@ -34,8 +34,8 @@ def run(folder, sizes, k, max_vertices, names):
     from warp_regdist.geometry.operators import largest_angles
 
     rows = []
-    for name, mesh in corpus(folder, max_vertices, sizes):
-        if not name.endswith(" decimated") or (names and name.split()[0] not in names):
+    for name, mesh in corpus(folder, max_vertices, sizes, names):
+        if not name.endswith(" decimated"):
             continue
         sources = list(range(mesh.n_vertices)) if mesh.n_vertices <= k else spread(mesh, k)
         obtuse = int(np.sum(largest_angles(mesh.vertices, mesh.elements) > 120))

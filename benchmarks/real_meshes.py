@@ -38,8 +38,9 @@ RESULTS = os.path.join(HERE, "results", "real_meshes.csv")
 SUMMARY = os.path.join(HERE, "results", "real_meshes_summary.csv")
 
 
-def corpus(folder, max_vertices, decimate):
-    """(name, Mesh) of every mesh file in ``folder`` that loads (repaired) with at most ``max_vertices``."""
+def corpus(folder, max_vertices, decimate, names=()):
+    """(name, Mesh) of every mesh file in ``folder`` (only ``names``, file names without extension, when
+    given) that loads (repaired) with at most ``max_vertices``."""
     import warp_regdist as wrd
 
     out = []
@@ -47,6 +48,8 @@ def corpus(folder, max_vertices, decimate):
         if not path.lower().endswith((".obj", ".off", ".ply", ".stl")) or os.path.getsize(path) == 0:
             continue
         name = os.path.splitext(os.path.basename(path))[0]
+        if names and name not in names:
+            continue
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
