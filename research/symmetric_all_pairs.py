@@ -157,6 +157,7 @@ class SymmetricADMM:
         self.G = ops.grad.tocsr()
         self.D = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()
         self.AV, self.L, n = ops.vertex_volumes, ops.length_scale, mesh.n_vertices
+        self.element_volumes = ops.element_volumes
         self.alpha, self.m = alpha_hat * ops.length_scale, mesh.n_elements
         self.s = 1 / np.sqrt(self.AV)
         lam, self.Phi = np.linalg.eigh(self.s[:, None] * ops.stiffness.toarray() * self.s[None, :])
