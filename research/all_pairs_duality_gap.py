@@ -3,19 +3,22 @@
     python research/all_pairs_duality_gap.py                       # the two exact minimizers in tests/data
     python research/all_pairs_duality_gap.py --larger --cache /tmp/stopping
 
-The all-pairs problem over symmetric U with a zero diagonal (docs/method.md section 7),
+The all-pairs problem over symmetric U with a zero diagonal (docs/method.md section 5),
 
     f(U) = -a^T U a + alpha sum_j a_j U_j^T W U_j,   |(G U_j)_e| <= 1 for every element e and column j,
 
 is convex, so any multipliers bound its minimum f* from below. With Y (3m, n) the multipliers of the
 symmetric splitting (research/symmetric_all_pairs.py: Z = G U, U-step
 (alpha + rho/2)(W U M + M U W) = a a^T + sym(D (rho Z - Y) M) + Diag(mu)), the Lagrangian's minimum
-over U is a single U-step:
+over U is one solve in the U-step's eigenbasis:
 
-    g(Y) = -(1/2) <C, U_C> - sum_j a_j sum_e |e| |Y_ej|,   C = a a^T - sym(D Y M),
-    alpha (W U_C M + M U_C W) = C + Diag(mu),  diag(U_C) = 0,
+    g(Y) = -(1/2) <C, U_C> - sum_j a_j sum_e |e| |Y_ej|,   C = a a^T - sym(D Y M) + Diag(mu),
+    alpha (W U_C M + M U_C W) = C  over symmetric U_C,
 
-and g(Y) <= f* <= f(U') for U' = U / max(1, max |G U|), the iterate scaled into the constraint. The
+mu the diagonal's multipliers of the prototype's U-step (its quadrature), shifted so that C has no
+constant part (any mu gives a bound; the U-step's makes it nearly the best),
+and g(Y) <= f* <= f(U') for U', the matrix symmetrized with a zero diagonal and scaled into the
+constraint by 1 / max(1, max |G U|). The
 quadratic's curvature then bounds the distance to the minimizer U*:
 
     (alpha / 2) <E, W E M + M E W> <= f(U') - g(Y) = gap,   E = U' - U*,
@@ -26,10 +29,12 @@ kappa the smallest eigenvalue of W E M + M E W against M E M on symmetric E with
 max U (rms_bound_pct), with the actual RMS and max errors against the minimizer: Clarabel's for the
 two stored cases, for ``--larger`` the cached 5,000-iteration runs of benchmarks/all_pairs.py
 --larger on intrinsic operators (whose own gap the last row of each mesh reports), and the package's
-AllPairsSolver at accuracy 0.01 and 0.005 bounded with the longest run's multipliers. The energy
+AllPairsSolver (at accuracy 0.01 and 0.005, and 0.001 on the larger meshes) bounded with the
+prototype's last multipliers. The energy
 bounds no single entry: on the product of two surfaces (four dimensions) point values are not
-controlled by the Dirichlet energy, which is why the table gives the RMS. Writes
-benchmarks/results/all_pairs_duality_gap.csv.
+controlled by the Dirichlet energy, which is why the table gives the RMS. Each row also gives max |G U|
+and the max error of the matrix itself, unscaled (result_max_pct). Writes
+benchmarks/results/all_pairs_duality_gap.csv (``--larger``: all_pairs_duality_gap_larger.csv).
 """
 
 import argparse
@@ -52,6 +57,7 @@ from all_pairs import LARGER, REFERENCE_ITERATIONS  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs_duality_gap.csv")
+LARGER_RESULTS = os.path.join(HERE, "results", "all_pairs_duality_gap_larger.csv")
 
 
 class DualityGap:
@@ -110,11 +116,11 @@ class DualityGap:
         return float(np.sum(E * (T + T.T)))
 
     def bound(self, U, Y):
-        """(gap, RMS bound on U' - U* relative to max U') for the iterate U and multipliers Y."""
+        """(U', its gap f(U') - g(Y), the RMS bound on U' - U* relative to max U') for the matrix U
+        and the multipliers Y."""
         Uf = self.feasible(U)
         gap = max(self.objective(Uf) - self.lower(Y), 0.0)
-        total = self.p.AV.sum()
-        return gap, np.sqrt(2 * gap / (self.p.alpha * self.kappa)) / total / Uf.max()
+        return Uf, gap, np.sqrt(2 * gap / (self.p.alpha * self.kappa)) / self.p.AV.sum() / Uf.max()
 
 
 def errors(U, exact, a):
@@ -123,45 +129,47 @@ def errors(U, exact, a):
     return (np.sqrt(np.sum(a[:, None] * E ** 2 * a[None, :])) / a.sum() / exact.max(), np.abs(E).max() / exact.max())
 
 
-def trace_rows(name, mesh, alpha_hat, triangulation, exact, iterations, every, schedule=None):
-    """Rows along one run of the prototype (the reference run's penalty schedule): bound against error."""
+def bound_row(gap, U, Y, exact):
+    """The columns of one matrix U (n, n): its max |G U|, the relative gap and RMS bound of U' against
+    the multipliers Y, the RMS and max errors of U' and the max error of U itself."""
+    a = gap.p.AV
+    Uf, g, bound = gap.bound(U, Y)
+    rms, top = errors(Uf, exact, a)
+    return dict(max_gradient=round(float(np.linalg.norm((gap.p.G @ U).reshape(gap.p.m, 3, -1), axis=1).max()), 4),
+                relative_gap=float(f"{g / abs(gap.objective(Uf)):.3g}"), rms_bound_pct=round(100 * bound, 4),
+                rms_pct=round(100 * rms, 4), max_pct=round(100 * top, 4),
+                bound_over_rms=round(bound / rms, 1) if rms > 0 else None,
+                result_max_pct=round(100 * errors(U, exact, a)[1], 4))
+
+
+def trace_rows(name, mesh, alpha_hat, triangulation, exact, iterations, every):
+    """Rows along one run of the prototype (the reference run's penalty schedule), and (gap, last Y)."""
     prototype = SymmetricADMM(mesh, alpha_hat, triangulation)
     gap = DualityGap(prototype)
-    rho = schedule or (lambda k: prototype.L * min(128.0, 16.0 * 2 ** (k // 300)))
-    rows, a = [], prototype.AV
-    t0 = time.perf_counter()
-    for k, (U, _, Y) in enumerate(itertools.islice(prototype.iterates(rho), iterations), 1):
+    rows, t0 = [], time.perf_counter()
+    schedule = (lambda k: prototype.L * min(128.0, 16.0 * 2 ** (k // 300)))
+    for k, (U, _, Y) in enumerate(itertools.islice(prototype.iterates(schedule), iterations), 1):
         if k % every and k != iterations:
             continue
-        g, rms_bound = gap.bound(U, Y)
-        Uf = gap.feasible(U)
-        rms, top = errors(Uf, exact, a)
         rows.append(dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, triangulation=triangulation,
-                         run="symmetric", iterations=k, relative_gap=g / abs(gap.objective(Uf)),
-                         rms_bound_pct=round(100 * rms_bound, 4), rms_pct=round(100 * rms, 4), max_pct=round(100 * top, 4),
-                         bound_over_rms=round(rms_bound / rms, 2) if rms > 0 else None,
+                         run="symmetric", iterations=k, **bound_row(gap, U, Y, exact),
                          seconds=round(time.perf_counter() - t0, 1)))
         print(rows[-1], file=sys.stderr, flush=True)
     return rows, gap, Y.copy()
 
 
-def package_rows(name, mesh, alpha_hat, triangulation, exact, gap, Y):
-    """The package's result at accuracy 0.01 and 0.005, bounded with the multipliers Y of a longer run."""
-    rows, a = [], gap.p.AV
+def package_rows(name, mesh, alpha_hat, triangulation, exact, gap, Y, accuracies):
+    """The package's results at ``accuracies``, bounded with the multipliers Y of the prototype's run."""
+    rows = []
     solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation=triangulation)
-    for accuracy in (0.01, 0.005):
+    for accuracy in accuracies:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-            res = solver.solve(accuracy=accuracy)
-        Uf = gap.feasible(np.asarray(res.distance, dtype=np.float64))
-        g = max(gap.objective(Uf) - gap.lower(Y), 0.0)
-        rms, top = errors(Uf, exact, a)
-        bound = np.sqrt(2 * g / (gap.p.alpha * gap.kappa)) / a.sum() / Uf.max()
+            res = solver.solve(accuracy=accuracy, max_iterations=8000)
         rows.append(dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, triangulation=triangulation,
                          run=f"package accuracy {accuracy:g}", iterations=res.iterations,
-                         relative_gap=g / abs(gap.objective(Uf)), rms_bound_pct=round(100 * bound, 4),
-                         rms_pct=round(100 * rms, 4), max_pct=round(100 * top, 4),
-                         bound_over_rms=round(bound / rms, 2) if rms > 0 else None, seconds=round(res.seconds, 1)))
+                         **bound_row(gap, np.asarray(res.distance, dtype=np.float64), Y, exact),
+                         seconds=round(res.seconds, 1)))
         print(rows[-1], file=sys.stderr, flush=True)
     return rows
 
@@ -172,7 +180,7 @@ def main():
     parser.add_argument("--cache", default=None, help="with --larger: the folder of benchmarks/all_pairs.py's references")
     parser.add_argument("--iterations", type=int, default=2000, help="prototype iterations on the exact cases")
     parser.add_argument("--every", type=int, default=250, help="iterations between two bounds")
-    parser.add_argument("--output", default=RESULTS)
+    parser.add_argument("--output", default=None, help="CSV (default: benchmarks/results/all_pairs_duality_gap[_larger].csv)")
     args = parser.parse_args()
     rows = []
     if args.larger:
@@ -187,7 +195,8 @@ def main():
                 continue
             trace, gap, Y = trace_rows(f"{name} decimated", mesh, alpha_hat, "intrinsic", reference,
                                        REFERENCE_ITERATIONS, args.every)
-            rows += trace + package_rows(f"{name} decimated", mesh, alpha_hat, "intrinsic", reference, gap, Y)
+            rows += trace + package_rows(f"{name} decimated", mesh, alpha_hat, "intrinsic", reference, gap, Y,
+                                         (0.01, 0.005, 0.001))
     else:
         tests = os.path.join(HERE, "..", "tests", "data")
         for file, name in (("all_pairs_bumpy42.npz", "bumpy icosphere"), ("stopping_cat80.npz", "cat_rr decimated")):
@@ -195,8 +204,8 @@ def main():
             mesh = wrd.Mesh(d["vertices"], d["faces"].astype(np.int64))
             for alpha_hat, exact in ((0.03, d["U_003"]), (0.1, d["U_01"])):
                 trace, gap, Y = trace_rows(name, mesh, alpha_hat, "mesh", exact, args.iterations, args.every)
-                rows += trace + package_rows(name, mesh, alpha_hat, "mesh", exact, gap, Y)
-    write_csv(rows, args.output)
+                rows += trace + package_rows(name, mesh, alpha_hat, "mesh", exact, gap, Y, (0.01, 0.005))
+    write_csv(rows, args.output or (LARGER_RESULTS if args.larger else RESULTS))
     print(markdown_table(rows))
 
 
