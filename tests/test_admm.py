@@ -191,16 +191,18 @@ def bumpy42():
 def test_all_pairs_swapped_schedule_and_rho0(bumpy42):
     mesh, exact = bumpy42
     fast = PenaltySchedule(0.5, 4.0, 10.0, wrd.build_operators(mesh).length_scale)
-    default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4)
-    swapped = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, schedule=fast)
+    default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, engine="consensus")
+    swapped = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, schedule=fast,
+                            engine="consensus")
     assert default.converged and swapped.converged and swapped.iterations != default.iterations
     assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
     assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
-    started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, rho0=1.0)   # per call
+    started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, rho0=1.0,
+                             engine="consensus")   # per call
     assert started.iterations != default.iterations
     # in the solver's options rho0 also moves the multigrid's target penalty: other iterates, the same minimizer
     again = wrd.AllPairsSolver(mesh, 0.1, device="cpu", workers=1,
-                               options=wrd.AllPairsOptions(rho0=1.0, eps_change=3e-4)).solve()
+                               options=wrd.AllPairsOptions(rho0=1.0, eps_change=3e-4, engine="consensus")).solve()
     assert again.converged and _error(again.distance, exact) <= 1e-3
 
 

@@ -171,7 +171,8 @@ def test_half_state_admm_reproduces_full_admm(device):
     V = meshes.perturbed(V, F, 0.1, seed=5)
     expected = _full_admm(V, F, 0.05, 40)
     with pytest.warns(wrd.ConvergenceWarning):
-        res = wrd.all_pairs(wrd.Mesh(V, F), 0.05, device=device, max_iterations=40, cg_fraction=1e-12)
+        res = wrd.all_pairs(wrd.Mesh(V, F), 0.05, device=device, max_iterations=40, cg_fraction=1e-12,
+                            engine="consensus")
     assert res.iterations == 40
     assert np.abs(res.distance - expected).max() <= 1e-8 * expected.max()
     assert np.abs(expected - expected.T).max() <= 1e-10 * expected.max()  # the full ADMM stays symmetric too
@@ -320,12 +321,12 @@ def test_warm_start_from_another_alpha_hat_reaches_the_new_minimizer(bumpy42, tm
     # continuation 0.03 -> 0.1: the start is 2.9% of the maximum away from the new minimizer
     mesh, refs = bumpy42
     path = tmp_path / "a003.npz"
-    first = wrd.all_pairs(mesh, 0.03, checkpoint=path)
+    first = wrd.all_pairs(mesh, 0.03, checkpoint=path, engine="consensus")
     assert first.converged and np.abs(refs[0.03] - refs[0.1]).max() > 0.02 * refs[0.1].max()
-    again = wrd.all_pairs(mesh, 0.03, resume=path)  # a converged run's checkpoint holds its result
+    again = wrd.all_pairs(mesh, 0.03, resume=path, engine="consensus")  # a converged run's checkpoint holds its result
     assert again.iterations == first.iterations and np.array_equal(again.distance, first.distance)
-    cold = wrd.all_pairs(mesh, 0.1)
-    warm = wrd.all_pairs(mesh, 0.1, initial=path)
+    cold = wrd.all_pairs(mesh, 0.1, engine="consensus")
+    warm = wrd.all_pairs(mesh, 0.1, initial=path, engine="consensus")
     assert warm.converged and warm.iterations < cold.iterations and warm.iterations == len(warm.history)
     assert np.abs(warm.distance - refs[0.1]).max() <= 0.01 * refs[0.1].max()
     assert np.array_equal(warm.distance, warm.distance.T)
@@ -351,11 +352,13 @@ def test_one_column_per_thread_gives_the_same_iterates(bumpy42, monkeypatch):
     mesh, _ = bumpy42
     capped = pytest.warns(wrd.ConvergenceWarning, match="did not converge in 200 iterations")
     with capped:
-        lanes = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=200, eps_change=math.inf)
+        lanes = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=200, eps_change=math.inf,
+                                  engine="consensus")
     widths = []
     monkeypatch.setattr(all_pairs_state, "lanes_per_thread", lambda device, W: widths.append(W) or 1)
     with capped:
-        columns = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=200, eps_change=math.inf)
+        columns = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=200, eps_change=math.inf,
+                                  engine="consensus")
     assert widths == [8]  # float64 lanes of 8 columns, seen as 48 columns of one
     assert columns.iterations == lanes.iterations and columns.cg_iterations == lanes.cg_iterations
     assert np.abs(columns.distance - lanes.distance).max() <= 1e-9 * lanes.distance.max()

@@ -116,7 +116,7 @@ def test_unconverged_all_pairs_names_its_obtuse_steepest_triangle(cat80):
     climbs across one of them, and the warning says which, with its angle."""
     mesh, _ = cat80
     with pytest.warns(wrd.ConvergenceWarning) as caught:
-        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1, triangulation="mesh")
+        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1, triangulation="mesh", engine="consensus")
     hints = [str(w.message) for w in caught if "obtuse" in str(w.message)]
     assert not res.converged and res.gradient_excess > 0.005
     assert hints == [f"all pairs: column 78 climbs {res.gradient_excess:.3g} of max U above unit speed across "

@@ -188,7 +188,7 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
     path = tmp_path / "run.npz"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        whole = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2)
+        whole = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, engine="consensus")
         others = _worker_pids(os.getpid())
 
         def kill_at_eight(progress):
@@ -199,9 +199,9 @@ def test_all_pairs_with_a_dead_worker_raises_and_resumes(tmp_path):
 
         with pytest.raises(wrd.WorkerError, match=r"worker process 1 \(pid \d+\) was killed by SIGTERM; its part of the "
                                               r"work is lost \(an all-pairs run resumes from its last checkpoint\)"):
-            wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, checkpoint=path,
+            wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, checkpoint=path, engine="consensus",
                           checkpoint_seconds=1e-9, callback=kill_at_eight)
-        rest = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, resume=path)
+        rest = wrd.all_pairs(mesh, 0.05, max_iterations=20, device="cpu", workers=2, resume=path, engine="consensus")
     assert rest.iterations == whole.iterations == 20
     assert np.array_equal(rest.distance, whole.distance)
 
@@ -216,7 +216,7 @@ def test_worker_columns_do_not_depend_on_the_environment(monkeypatch):
     V, F = meshes.icosphere(2, 1.0)
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=5), F)
     sets = [[j] for j in range(9)]  # two lane blocks of 8: one per process
-    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+    with wrd.DistanceSolver(mesh, 0.05, workers=2, engine="consensus") as solver:
         split = solver.solve_many(sets)
         alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
     np.testing.assert_array_equal(split.distance, alone.distance)
@@ -234,7 +234,7 @@ def test_workers_run_under_the_callers_options():
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=6), F)
     sets = [[j] for j in range(9)]
     changed = dict(eps_rel=1e-4, eps_rel_dual=0.05, change_window=5)
-    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
+    with wrd.DistanceSolver(mesh, 0.05, workers=2, engine="consensus") as solver:
         split = solver.solve_many(sets, **changed)
     alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets, **changed)
     default = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)

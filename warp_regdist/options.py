@@ -50,6 +50,7 @@ class _Options:
     _INFINITE = ()     # fields that may be inf (that test switched off)
     _POSITIVE = ()     # fields that must be > 0 (the others >= 0)
     _INTEGERS = ()     # fields that are integers >= 1
+    _CHOICES = {}      # fields that take one of a few strings
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -62,6 +63,10 @@ class _Options:
             elif field.type == "bool" or isinstance(field.default, bool):
                 if not isinstance(value, (bool, np.bool_)):
                     raise ValueError(f"expected {field.name} as True or False, got {value!r}")
+            elif field.name in self._CHOICES:
+                if not (isinstance(value, str) and value in self._CHOICES[field.name]):
+                    raise ValueError(f"expected {field.name} as one of {', '.join(map(repr, self._CHOICES[field.name]))}, "
+                                     f"got {value!r}")
             elif field.name == "check_every":
                 if value is not None:
                     _check_number(field.name, value, 1, integer=True)
@@ -186,6 +191,12 @@ class AllPairsOptions(_Options):
         Each X-step's PCG stops at cg_fraction (|D Y_j| + |A_V| / 2) per column j.
     max_gradient : float
         A result whose |grad U| exceeds this on some element and column is not converged.
+    engine : {"auto", "eigenbasis", "consensus"}
+        The splitting (docs/method.md section 5): "eigenbasis", U symmetric in the primal with an
+        exact dense U-step (no PCG, no consensus; O(n^3) work an iteration and (n, n) eigenvectors);
+        "consensus", Algorithm 2's splitting with PCG X-steps (O(n^2) work an iteration, worker
+        processes); "auto": eigenbasis on the CPU up to ``EIGENBASIS_MAX_VERTICES`` vertices, consensus
+        otherwise (docs/guides/all-pairs.md gives the measurements behind it).
     """
 
     eps_abs: float = 0.0
@@ -206,8 +217,10 @@ class AllPairsOptions(_Options):
     cg_rtol: float = 1e-10
     cg_max_iterations: int = 500
     max_gradient: float = 1.5
+    engine: str = "auto"
 
     _INFINITE = ("eps_change", "eps_excess", "rho_doubling")
+    _CHOICES = {"engine": ("auto", "eigenbasis", "consensus")}
     _POSITIVE = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")
     _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations")

@@ -50,7 +50,10 @@ def add_parser(sub) -> None:
     allpairs.add_argument("--max-iterations", type=int, default=3000, metavar="N",
                           help="ADMM iteration cap (default: 3000)")
     allpairs.add_argument("--workers", type=int, default=None, metavar="N",
-                          help="CPU processes sharing every step (default: the cores available)")
+                          help="CPU processes sharing every step of the consensus engine (default: the cores available)")
+    allpairs.add_argument("--engine", choices=("auto", "eigenbasis", "consensus"), default="auto",
+                          help="the splitting: eigenbasis (exact dense U-step, small meshes), consensus (PCG, any size); "
+                          "auto: eigenbasis on the CPU up to 500 vertices (default: auto)")
     repair_option(allpairs)
     solver_options(allpairs)
 
@@ -90,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
         result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
                            callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
                            workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
-                           resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)
+                           resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart,
+                           engine=args.engine)
     saved = (f"; the solver state of iteration {result.checkpoint_iteration} is in {args.checkpoint} (continue with "
              f"--resume {args.checkpoint})" if result.get("checkpoint_iteration") is not None else "")
     if result.interrupted:

@@ -61,13 +61,18 @@ from ..options import AllPairsOptions
 from .admm import PenaltySchedule
 from .all_pairs_checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
+from .all_pairs_eigenbasis import EigenbasisADMM, EigenbasisUStep
 from .all_pairs_run import PairsRun, final_result
 from .all_pairs_state import SymmetricADMM, middle_matrix
 from .memory import check_memory, memory_estimate
 from .multigrid import smoothed_aggregation
 from .stopping import gradient_excess, steep_columns, steepest_element
 
-__all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE"]
+__all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTICES"]
+
+EIGENBASIS_MAX_VERTICES = 500
+"""The largest mesh on which ``engine="auto"`` takes the eigenbasis engine (on the CPU): its dense U-step
+costs O(n^3) an iteration against the consensus engine's O(n^2), and its setup an (n, n) eigendecomposition."""
 
 OBTUSE_ANGLE = 120.0
 """An unconverged all-pairs result whose steepest triangle has an angle of this many degrees or more
@@ -107,7 +112,9 @@ class AllPairsSolver:
         Estimated footprint of a solve's arrays (device and host); each :meth:`solve` checks it
         against the memory then available and frees its arrays when it returns.
     hierarchy : warp_regdist.solvers.multigrid.Hierarchy
-        The X-step's multigrid preconditioner, shared by every solve.
+        The consensus engine's X-step multigrid preconditioner, shared by every solve.
+    u_step : warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisUStep
+        The eigenbasis engine's U-step (eigenvectors of the stiffness), shared by every solve.
 
     Examples
     --------
@@ -142,8 +149,25 @@ class AllPairsSolver:
         self._excess = functools.partial(gradient_excess, ops.grad, ops.diameters)
         self._steepest = functools.partial(steepest_element, ops.grad, ops.diameters)
         self._penalty_mid = _penalty_mid(PenaltySchedule.of(self.options, ops.length_scale), ops.length_scale)
-        self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device))
-        self.hierarchy = smoothed_aggregation(middle_matrix(ops, self.options.rho2_factor, self._penalty_mid))
+        self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device,
+                                                self.engine(self.options)))
+
+    def engine(self, options):
+        """The engine that ``options`` choose on this mesh and device: their ``engine``, or for "auto"
+        "eigenbasis" on the CPU up to EIGENBASIS_MAX_VERTICES vertices and "consensus" otherwise."""
+        if options.engine != "auto":
+            return options.engine
+        return "eigenbasis" if self.device.is_cpu and self.mesh.n_vertices <= EIGENBASIS_MAX_VERTICES else "consensus"
+
+    @functools.cached_property
+    def hierarchy(self):
+        """The consensus engine's X-step multigrid preconditioner (built on first use, shared by every solve)."""
+        return smoothed_aggregation(middle_matrix(self.operators, self.options.rho2_factor, self._penalty_mid))
+
+    @functools.cached_property
+    def u_step(self):
+        """The eigenbasis engine's exact U-step (set up on first use, shared by every solve)."""
+        return EigenbasisUStep(self.operators.stiffness, self.operators.vertex_volumes, self.dtype)
 
     def solve(self, accuracy=None, callback=None, checkpoint=None, checkpoint_seconds=300.0, resume=None,
               initial=None, restart=False, **options):
@@ -220,7 +244,9 @@ class AllPairsSolver:
         if resume is not None and initial is not None:
             raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: "
                              f"{os.fspath(resume)!r} and {os.fspath(initial)!r}")
-        fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation)
+        engine = self.engine(run_options)
+        fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation,
+                                          engine)
         size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, run_options.max_iterations)
         if checkpoint is not None:
             check_room([checkpoint_room(checkpoint, size)])
@@ -235,12 +261,14 @@ class AllPairsSolver:
                                                          ("mesh_sha256", "n_vertices", "dtype", "triangulation"),
                                                          "initial"))
                      if initial is not None else None)
-            memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device)
+            memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device, engine)
             if saved is not None and "final" in saved:
                 return self._flag_steep(final_result(saved, memory, checkpoint), run_options)
-            state = stack.enter_context(contextlib.closing(SymmetricADMM(
-                self.operators, self.alpha_hat, self.device, dtype, run_options, self._penalty_mid, self.workers,
-                self._auto_workers, self.hierarchy)))
+            state = stack.enter_context(contextlib.closing(
+                EigenbasisADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self.u_step)
+                if engine == "eigenbasis" else
+                SymmetricADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self._penalty_mid,
+                              self.workers, self._auto_workers, self.hierarchy)))
             saving = None if checkpoint is None else Checkpoint(checkpoint, checkpoint_seconds, fingerprint, size)
             run = PairsRun(state, run_options, PenaltySchedule.of(run_options, self.operators.length_scale), memory,
                            callback, saving, self._excess)
@@ -278,7 +306,7 @@ class AllPairsSolver:
 
 
 _NOT_FROM_ACCURACY = ("eps_abs", "change_window", "max_iterations", "relaxation", "rho0", "rho_max", "rho_doubling",
-                      "rho2_factor", "schedule", "cg_rtol", "cg_max_iterations", "max_gradient")
+                      "rho2_factor", "schedule", "cg_rtol", "cg_max_iterations", "max_gradient", "engine")
 """The options that ``accuracy`` leaves as the solver's."""
 
 

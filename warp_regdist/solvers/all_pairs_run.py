@@ -33,7 +33,8 @@ def _estimate(change):
 def final_result(saved, memory, checkpoint):
     """The result recorded in the checkpoint of a converged run."""
     n = int(json.loads(str(saved["fingerprint"]))["n_vertices"])
-    return AllPairsResult(distance=saved["U"].reshape(n, -1)[:, :n].astype(np.float64), iterations=int(saved["iteration"]),
+    return AllPairsResult(distance=np.maximum(saved["U"].reshape(n, -1)[:, :n], 0).astype(np.float64),
+                          iterations=int(saved["iteration"]),
                           converged=True, interrupted=False, residuals=saved["residuals"], tolerance=saved["tolerance"],
                           history=saved["history"], **_estimate(float(saved["change"][1]) if "change" in saved else math.inf),
                           cg_iterations=int(saved["cg_iterations"]), seconds=float(saved["seconds"]),

@@ -19,7 +19,7 @@ from .multigrid import smoothed_aggregation
 from .pcg import BatchedPCG
 from .processes import SharedArrays, WorkerPool, processes_available
 
-__all__ = ["SymmetricADMM", "middle_matrix", "STATE_ROWS"]
+__all__ = ["PairsState", "SymmetricADMM", "middle_matrix", "STATE_ROWS"]
 
 
 def middle_matrix(ops, rho2_factor, penalty_mid):
@@ -39,7 +39,8 @@ def _even_splits(weights, parts):
 class _Setup:
     """Host data that every part of the iteration needs (pickled to the worker processes): the
     operators ``ops``, the X-step matrix at the penalty ``penalty_mid`` (units of L) and its multigrid
-    ``hierarchy`` when the caller has it (built here otherwise), the split into ``parts``."""
+    ``hierarchy`` when the caller has it (built here otherwise; neither with ``penalty_mid`` None, for
+    an engine without X-step), the split into ``parts``."""
 
     def __init__(self, ops, alpha_hat, dtype, options, penalty_mid, parts, hierarchy=None):
         self.operators = ops
@@ -56,8 +57,9 @@ class _Setup:
         # The multigrid hierarchy of K2 / (alpha + rho) at the geometric mean of the penalty schedule
         # (fewer CG iterations than at either end); the mass term keeps the constants, which
         # W_D's own hierarchy ignores, in the preconditioner.
-        self.K_mid = middle_matrix(ops, options.rho2_factor, penalty_mid)
-        self.hierarchy = smoothed_aggregation(self.K_mid) if hierarchy is None else hierarchy
+        if penalty_mid is not None:
+            self.K_mid = middle_matrix(ops, options.rho2_factor, penalty_mid)
+            self.hierarchy = smoothed_aggregation(self.K_mid) if hierarchy is None else hierarchy
         self.blocks = _even_splits(np.ones(self.nb), parts)  # column blocks [b_t, b_t+1) of part t
         self.rows = _even_splits(self.nb - np.arange(self.nb), parts)  # consensus tile rows (row I: nb - I pairs)
 
@@ -191,7 +193,60 @@ class _Part:
             self.consensus.launch()
 
 
-class SymmetricADMM:
+class PairsState:
+    """What the all-pairs engines' states share (:class:`SymmetricADMM`, and
+    :class:`~warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisADMM`): the state ``arrays`` in lanes of
+    ``setup.W`` columns, read and written as numpy, and the steepness of U (``_steepness`` launches it)."""
+
+    def close(self):
+        """End the worker processes (none by default)."""
+
+    def gradient_excess(self, top):
+        """:func:`~warp_regdist.solvers.stopping.gradient_excess` of U, whose max is ``top``, on the device:
+        max over elements e and columns j of (|(G U_j)_e| - 1)_+ diam(e) / top (0 where top is 0, NaN
+        where it is not finite)."""
+        if not math.isfinite(top):
+            return math.nan
+        self.arrays["steep"].zero_()
+        self._steepness()
+        worst = float(self.arrays["steep"].numpy().max())
+        return worst / top if top > 0 else 0.0
+
+    def divergences_from_element_state(self):
+        """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
+        what the last element step scattered (D = G^T M_F, (n, 3m))."""
+        D, m = self.setup.divergence, self.m
+        v = self.view("v").astype(np.float64)
+        z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
+        shape = self.arrays["DZ"].numpy().shape
+        dz = (D @ z.reshape(3 * m, -1)).reshape(shape)
+        for name in ("DZ", "DZ_acc"):
+            self.put(name, dz)
+        self.put("DY_acc", (self.rho_v * (D @ (v - z).reshape(3 * m, -1))).reshape(shape))
+
+    def distance(self):
+        """max(U, 0) as an (n, n) float64 array (the U-steps write the same value to U_ij and U_ji; the
+        eigenbasis engine's U, unlike the consensus engine's, is not clipped at 0 by its U-step)."""
+        return np.maximum(self.arrays["U"].numpy().reshape(self.n, -1)[:, :self.n], 0).astype(np.float64)
+
+    def view(self, name):
+        """State array ``name`` as numpy (lane axis last) without a copy on the CPU (a host copy on
+        CUDA): valid until the next step writes it, for reading the state without doubling it."""
+        return self.arrays[name].numpy()
+
+    def put(self, name, values):
+        self.arrays[name].assign(values)
+
+    def clear_diagonal(self, name):
+        """State array ``name``[j, j] = 0 for every vertex j (in place on the CPU)."""
+        j = np.arange(self.n)
+        values = self.view(name)
+        values[j, j // self.setup.W, j % self.setup.W] = 0
+        if not self.arrays[name].device.is_cpu:
+            self.put(name, values)
+
+
+class SymmetricADMM(PairsState):
     """State and one iteration of the symmetric all-pairs ADMM (see the module docstring).
 
     On the CPU the iteration is split into up to ``workers`` parts (by default at most one
@@ -270,45 +325,5 @@ class SymmetricADMM:
         pairs = self.arrays["acc_pairs"].numpy().astype(np.float64).sum(axis=0)  # fixed order: tile rows
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
-    def gradient_excess(self, top):
-        """:func:`~warp_regdist.solvers.stopping.gradient_excess` of U, whose max is ``top``, on the device:
-        max over elements e and columns j of (|(G U_j)_e| - 1)_+ diam(e) / top (0 where top is 0, NaN
-        where it is not finite)."""
-        if not math.isfinite(top):
-            return math.nan
-        self.arrays["steep"].zero_()
+    def _steepness(self):
         self._each("steepness")
-        worst = float(self.arrays["steep"].numpy().max())
-        return worst / top if top > 0 else 0.0
-
-    def divergences_from_element_state(self):
-        """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
-        what the last element step scattered (D = G^T M_F, (n, 3m))."""
-        D, m = self.setup.divergence, self.m
-        v = self.view("v").astype(np.float64)
-        z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
-        shape = self.arrays["DZ"].numpy().shape
-        dz = (D @ z.reshape(3 * m, -1)).reshape(shape)
-        for name in ("DZ", "DZ_acc"):
-            self.put(name, dz)
-        self.put("DY_acc", (self.rho_v * (D @ (v - z).reshape(3 * m, -1))).reshape(shape))
-
-    def distance(self):
-        """U as an (n, n) float64 array (the U-step writes the same value to U_ij and U_ji)."""
-        return self.arrays["U"].numpy().reshape(self.n, -1)[:, :self.n].astype(np.float64)
-
-    def view(self, name):
-        """State array ``name`` as numpy (lane axis last) without a copy on the CPU (a host copy on
-        CUDA): valid until the next step writes it, for reading the state without doubling it."""
-        return self.arrays[name].numpy()
-
-    def put(self, name, values):
-        self.arrays[name].assign(values)
-
-    def clear_diagonal(self, name):
-        """State array ``name``[j, j] = 0 for every vertex j (in place on the CPU)."""
-        j = np.arange(self.n)
-        values = self.view(name)
-        values[j, j // self.setup.W, j % self.setup.W] = 0
-        if not self.arrays[name].device.is_cpu:
-            self.put(name, values)

@@ -26,27 +26,32 @@ def available_memory(device):
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
 
 
-def memory_estimate(n, m, dtype="float64", device="cpu"):
-    """Bytes needed by :func:`all_pairs` for n vertices and m triangles.
+def memory_estimate(n, m, dtype="float64", device="cpu", engine="consensus"):
+    """Bytes needed by :func:`all_pairs` for n vertices and m triangles with ``engine``.
 
-    Device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
+    The consensus engine: device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
     the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4) and mask (1), the multigrid
     levels (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
     host the float64 (n, n) result, and in the solver's precision the U of the last change test
     and the change test's difference (and, on a GPU, the copy of one state array at a time to
-    the host; checkpoints write the state from views, not copies, on the CPU).
+    the host; checkpoints write the state from views, not copies, on the CPU). The eigenbasis engine:
+    U, H, DZ and the divergences (5) and the z/y state on the device, the same host arrays and
+    the U-step's Phi, 1 / (lam_p + lam_q) and four (n, n) temporaries in ``dtype``, the LU factors of its
+    bordered system and two (n, n) temporaries of its right-hand side (float64), and its result in lanes.
     """
     W = lane_width(SCALARS[dtype], n)
     cols = -(-n // W) * W
     size = np.dtype(dtype).itemsize
-    device_bytes = size * cols * (13 * n + 3 * m)
     host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
-    return device_bytes, host_bytes
+    if engine == "eigenbasis":
+        u_step = size * 6 * n * n + 8 * (n + 1) ** 2 + 16 * n * n + size * n * cols
+        return size * cols * (5 * n + 3 * m), host_bytes + u_step
+    return size * cols * (13 * n + 3 * m), host_bytes
 
 
-def check_memory(n, m, dtype, dev):
+def check_memory(n, m, dtype, dev, engine="consensus"):
     """The footprint (bytes) of an all-pairs run; ValueError when it exceeds the available memory."""
-    device_bytes, host_bytes = memory_estimate(n, m, dtype, dev)
+    device_bytes, host_bytes = memory_estimate(n, m, dtype, dev, engine)
     if dev.is_cuda:
         cpu_available = available_memory(wp.get_device("cpu"))
         if device_bytes > available_memory(dev) or host_bytes > cpu_available:

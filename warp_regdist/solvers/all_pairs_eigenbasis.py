@@ -1,0 +1,168 @@
+"""The eigenbasis engine of :class:`~warp_regdist.AllPairsSolver`: a two-block ADMM whose primal U is
+symmetric with a zero diagonal by construction (docs/method.md section 5, "the eigenbasis engine").
+
+Only the columns' gradients are split off (Z = G U; the rows' follow by symmetry), so there is no
+consensus variable and the U-step is solved exactly:
+
+    U-step  (alpha + rho/2)(W U M + M U W) = A_V A_V^T + sym(D (rho Z - Y) M) + Diag(mu),  diag(U) = 0
+    Z-step  Z = Proj(a G U + (1 - a) Z_old + Y / rho),  Y += rho (a G U + (1 - a) Z_old - Z)
+
+(M = diag(A_V), W the stiffness, D = G^T M_F, a the over-relaxation). With W' = M^(-1/2) W M^(-1/2)
+= Phi Lambda Phi^T, X = M^(1/2) U M^(1/2) solves W' X + X W' = C entrywise in the eigenbasis
+(six dense n x n products an iteration, BLAS on the host), and the diagonal's multipliers mu solve
+one (n + 1) system set up once (:class:`EigenbasisUStep`). The Z-step is the consensus engine's
+element kernel with X = U (kernels/all_pairs.py), so the state, its checkpoints and the stopping
+rule are those of :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM` with X = U and H = 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sl
+import warp as wp
+
+from ..kernels.all_pairs import U2, X2, all_pairs_kernels
+from ..kernels.element_core import G2, R2, Z2
+from ..kernels.lanes import SCALARS, lane_type, row_dim, thread_span
+from .all_pairs_state import PairsState, _Setup
+from .device_mesh import DeviceMesh
+
+__all__ = ["EigenbasisUStep", "EigenbasisADMM"]
+
+
+def diagonal_response(Phi, lam, nodes=80):
+    """K_ik = sum over (p, q) != (0, 0) of Phi_ip Phi_kp Phi_iq Phi_kq / (lam_p + lam_q) (n, n): the
+    diagonal of the U-step's response to Diag(e_k), as the integral over t of H_t(i, k)^2 - (phi0_i
+    phi0_k)^2 with H_t = Phi e^(-lam t) Phi^T, by the trapezoid rule in log t (``nodes`` products) over
+    t in [1e-10 / lam_max, 60 / lam_1] (what lies outside is below 1e-10 of K; 6e-11 measured against the
+    sum itself on a 42-vertex mesh)."""
+    s = np.linspace(np.log(1e-10 / lam[-1]), np.log(60 / lam[1]), nodes)
+    K, P1, F0 = np.zeros((len(lam),) * 2), Phi[:, 1:], np.outer(Phi[:, 0], Phi[:, 0])
+    for sk in s:
+        t = np.exp(sk)
+        H1 = (P1 * np.exp(-lam[1:] * t)) @ P1.T
+        K += H1 * (H1 + 2 * F0) * (t * (s[1] - s[0]))
+    return K
+
+
+class EigenbasisUStep:
+    """The exact U-step: the symmetric U with zero diagonal that solves
+
+        scale (W U M + M U W) = R + Diag(mu) + c A_V A_V^T-orthogonal constant,   diag(U) = 0,
+
+    for symmetric R (n, n), W the stiffness (n, n), M = diag(A_V) (the constant mode of U, which W
+    does not see, is fixed by the (n + 1)-th equation sum(R + Diag(mu)) = 0). Set up once: the
+    eigendecomposition of M^(-1/2) W M^(-1/2) (float64, then ``dtype``) and the LU factors of the
+    diagonal's bordered system; each call is six n x n matrix products in ``dtype``.
+    """
+
+    def __init__(self, stiffness, vertex_volumes, dtype="float64"):
+        n = vertex_volumes.size
+        s = 1 / np.sqrt(vertex_volumes)
+        lam, Phi = np.linalg.eigh(s[:, None] * stiffness.toarray() * s[None, :])
+        lam[0] = 0.0
+        d = lam[:, None] + lam[None, :]
+        border = np.zeros((n + 1, n + 1))
+        border[:n, :n] = s[:, None] ** 2 * diagonal_response(Phi, lam)
+        border[:n, n], border[n, :n] = 1.0, vertex_volumes
+        self.border = sl.lu_factor(border)
+        self.dtype = np.dtype(dtype)
+        self.Phi = Phi.astype(self.dtype)
+        self.dinv = np.where(d > 0, 1 / np.where(d > 0, d, 1.0), 0.0).astype(self.dtype)
+        self.s = s.astype(self.dtype)
+        self.n = n
+
+    def __call__(self, R, scale):
+        """U (n, n) in ``dtype``: exactly symmetric, zero diagonal."""
+        Phi, s, dinv, n = self.Phi, self.s, self.dinv, self.n
+        C = (s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]
+        PY = Phi @ ((Phi.T @ C @ Phi) * dinv)
+        diag = np.einsum("ij,ij->i", PY, Phi, dtype=np.float64) / scale
+        sol = sl.lu_solve(self.border, np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]]))
+        PY += Phi @ (((Phi.T * self.dtype.type(scale)) * sol[:n].astype(self.dtype)) @ Phi * dinv)
+        U = (PY @ Phi.T) * self.dtype.type(1 / scale)
+        U = s[:, None] * U * s[None, :] + self.dtype.type(sol[n])
+        U = 0.5 * (U + U.T)
+        np.fill_diagonal(U, 0)
+        return U
+
+
+class EigenbasisADMM(PairsState):
+    """State and one iteration of the eigenbasis engine, with the interface of
+    :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM` that
+    :class:`~warp_regdist.solvers.all_pairs_run.PairsRun` drives: the arrays X (the same array as U),
+    U, H (zero), DZ, DZ_acc, DY_acc and v, one process (BLAS threads run the U-step)."""
+
+    def __init__(self, ops, alpha_hat, device, dtype, options, u_step):
+        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, None, 1)
+        self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
+        self.column_area = np.zeros(setup.nb * setup.W)
+        self.column_area[:self.n] = setup.vertex_volumes
+        self.u_step = u_step
+        sc = SCALARS[dtype]
+        self.scalar = sc
+        V = lane_type(sc, setup.W)
+        self.arrays = {name: wp.zeros(shape[:-1], dtype=V, device=device)
+                       for name, (shape, _) in setup.state_specs().items()
+                       if name in ("U", "H", "DZ", "DZ_acc", "DY_acc", "v", "acc", "steep")}
+        self.arrays["X"] = self.arrays["U"]
+        self.mesh = mesh = DeviceMesh(ops, sc, device)
+        k = all_pairs_kernels(sc, setup.W)
+        nb, W, m, n = setup.nb, setup.W, self.m, self.n
+        span = thread_span(device, nb, nb, m)
+        a = self.arrays
+        self.element = wp.launch(k.element_step, row_dim(m, span, nb), device=device, record_cmd=True,
+                                 inputs=[mesh.elements, mesh.basis, mesh.volumes, a["U"], a["v"], sc(1.0), sc(1.0),
+                                         sc(setup.relaxation), a["DZ_acc"], a["DY_acc"], a["acc"], *span, m])
+        self.steep = wp.launch(k.steepness, row_dim(m, span, nb), device=device, record_cmd=True,
+                               inputs=[mesh.elements, mesh.basis, mesh.diameters, a["U"], a["steep"], *span, m])
+        self.rho_v = 1.0
+        self.penalties = None
+        self._areas = setup.vertex_volumes.astype(np.float64)
+        self._weights = np.outer(self._areas, self._areas)
+
+    def _matrix(self, name):
+        """State array ``name`` as an (n, n) numpy array (a view on the CPU)."""
+        return self.view(name).reshape(self.n, -1)[:, :self.n]
+
+    def set_penalties(self, rho, rho2):
+        self.penalties = (rho, rho2)
+
+    def right_hand_side(self):
+        """DZ <- the last element step's D Z (DZ_acc); returns per-column |D Z - DZ_old|^2 and |D Y|^2
+        (nb W,); DY_acc keeps D Y for the U-step."""
+        dz, dz_old, dy = (self.view(name).reshape(self.n, -1) for name in ("DZ_acc", "DZ", "DY_acc"))
+        s2 = np.square(dz.astype(np.float64) - dz_old).sum(axis=0)
+        dy2 = np.square(dy.astype(np.float64)).sum(axis=0)
+        self.put("DZ", self.view("DZ_acc"))
+        return s2, dy2
+
+    def x_and_element_steps(self, atol, rtol, max_iterations):
+        """The U-step (dense, on the host) then the element step; returns 0 (no PCG iterations)."""
+        rho = self.penalties[0]
+        n, a = self.n, self._areas
+        B = (rho * self._matrix("DZ").astype(np.float64) - self._matrix("DY_acc")) * a[None, :]
+        R = self._weights + 0.5 * (B + B.T)
+        U = self.u_step(R, self.alpha + 0.5 * rho)
+        lanes = np.zeros((n, self.setup.nb * self.setup.W), dtype=U.dtype)
+        lanes[:, :n] = U
+        self.put("U", lanes.reshape(n, self.setup.nb, self.setup.W))
+        for name in ("DZ_acc", "DY_acc", "acc"):
+            self.arrays[name].zero_()
+        self.element.set_param_by_name("rho_v", self.scalar(self.rho_v))
+        self.element.set_param_by_name("rho", self.scalar(rho))
+        self.element.launch()
+        self.rho_v = rho
+        return 0
+
+    def consensus(self):
+        """No consensus step: per-column R2, G2, Z2 sums (3, nb W) and the pair sums (5,) with X = U, H = 0."""
+        acc = self.view("acc").reshape(5, -1)
+        U = self._matrix("U").astype(np.float64)
+        pairs = np.zeros(5)
+        pairs[X2] = pairs[U2] = float(np.einsum("ij,ij->", self._weights, U * U))
+        return acc[[R2, G2, Z2]].astype(np.float64), pairs
+
+    def _steepness(self):
+        self.steep.launch()
+
