@@ -8,6 +8,7 @@
     python benchmarks/all_pairs.py --accuracy --cache /tmp/stopping   # accuracy= against exact minimizers
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping     # 300-500 vertices against long runs
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping --triangulations mesh intrinsic
+    python benchmarks/all_pairs.py --engines --cache /tmp/stopping    # eigenbasis against consensus engine
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -33,6 +34,12 @@ beside each run the same solve without the steepness test (``eps_excess=inf``, c
 ``unchecked_*``). With ``--triangulations mesh intrinsic`` each decimation is solved on both operators
 (the mesh's own and the intrinsic Delaunay ones), each against its own reference. Writes
 benchmarks/results/all_pairs_larger.csv.
+
+With ``--engines``: both engines (``AllPairsOptions.engine``) at accuracy 0.01 and 0.005, one process, on
+the exact cases of tests/data (the mesh's operators) and on ``LARGER`` (intrinsic operators, against
+the long runs in ``--cache``); then each engine's setup and time per iteration (``ENGINE_COST_ITERATIONS``
+iterations, float32 and float64) on cat_rr decimated to 1,000 vertices and on cat_rr itself, the sizes
+that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv.
 """
 
 import argparse
@@ -63,6 +70,8 @@ ACCURACIES = (0.02, 0.01, 0.005, 0.002)
 LARGER = (("cat_rr", 500, 0.03), ("spot_rr_holes", 302, 0.03), ("spot_rr", 400, 0.03), ("bent_pipe_closed_lr", 350, 0.03),
           ("cat_rr", 350, 0.1))
 LARGER_ACCURACIES = (0.01, 0.005)
+ENGINES_RESULTS = os.path.join(HERE, "results", "all_pairs_engines.csv")
+ENGINE_COST_ITERATIONS = 30
 REFERENCE_ITERATIONS = 5000
 DEFAULTS = dict(eps_rel=5e-4, eps_rel_consensus=5e-5, eps_rel_dual=1e-2)  # all_pairs' defaults
 
@@ -117,21 +126,41 @@ def _run_columns(res, reference, prefix=""):
             f"{prefix}excess_pct": round(100 * res.gradient_excess, 3)}
 
 
-def accuracy_rows(cases, accuracies, baseline=False, triangulation="mesh"):
-    """One row per case and accuracy; with ``baseline`` also the run with ``eps_excess=inf``."""
+def accuracy_rows(cases, accuracies, baseline=False, triangulation="mesh", engines=("consensus",)):
+    """One row per case, engine and accuracy; with ``baseline`` also the run with ``eps_excess=inf``."""
     rows = []
-    for name, mesh, alpha_hat, reference in cases:
-        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation=triangulation)
+    for (name, mesh, alpha_hat, reference), engine in ((case, e) for case in cases for e in engines):
+        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation=triangulation,
+                                    options=wrd.AllPairsOptions(engine=engine))
         for accuracy in accuracies:
             res = solver.solve(accuracy=accuracy)
-            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs", accuracy=accuracy,
-                       triangulation=triangulation,
+            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs", engine=engine,
+                       accuracy=accuracy, triangulation=triangulation,
                        **_run_columns(res, reference), seconds=round(res.seconds, 3),
                        ms_per_iteration=round(1e3 * res.seconds / res.iterations, 3), peak_rss_gb=round(peak_rss_gb(), 2))
             if baseline:
                 row.update(_run_columns(solver.solve(accuracy=accuracy, eps_excess=math.inf), reference, "unchecked_"))
             rows.append(row)
             print(row, flush=True)
+    return rows
+
+
+def engine_cost_rows():
+    """Setup seconds and ms per iteration of both engines on cat_rr decimated to 1,000 vertices and on cat_rr."""
+    import stopping
+
+    rows = []
+    for name, mesh in (("cat_rr decimated", stopping.decimated("cat_rr", 1000)), ("cat_rr", meshes.shared_mesh("cat_rr"))):
+        for dtype, engine in ((d, e) for d in ("float32", "float64") for e in ("eigenbasis", "consensus")):
+            t0 = time.perf_counter()
+            solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", dtype=dtype, options=wrd.AllPairsOptions(engine=engine))
+            getattr(solver, "u_step" if engine == "eigenbasis" else "hierarchy")
+            setup = time.perf_counter() - t0
+            res = solver.solve(max_iterations=ENGINE_COST_ITERATIONS)
+            rows.append(dict(mesh=name, n=mesh.n_vertices, dtype=dtype, engine=engine, workers=len(os.sched_getaffinity(0)),
+                             setup_seconds=round(setup, 2),
+                             ms_per_iteration=round(1e3 * res.seconds / res.iterations, 1)))
+            print(rows[-1], flush=True)
     return rows
 
 
@@ -150,13 +179,23 @@ def main():
     parser.add_argument("--accuracy", action="store_true", help="accuracy= against exact minimizers of small meshes")
     parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
     parser.add_argument("--larger", action="store_true", help="accuracy= on LARGER against long symmetric runs")
+    parser.add_argument("--engines", action="store_true", help="both engines on the exact cases and LARGER, and their costs")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-    if args.larger and args.cache is None:
-        parser.error("--larger needs --cache, the folder of its references")
+    if (args.larger or args.engines) and args.cache is None:
+        parser.error("--larger and --engines need --cache, the folder of their references")
+    if args.engines:
+        sys.path.append(os.path.join(HERE, "..", "tests"))
+        engines = ("eigenbasis", "consensus")
+        rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
+        rows += accuracy_rows(larger_cases(args.cache, "intrinsic"), LARGER_ACCURACIES, triangulation="intrinsic",
+                              engines=engines)
+        write_csv(rows + engine_cost_rows(), ENGINES_RESULTS)
+        print(f"wrote {ENGINES_RESULTS}")
+        return 0
     if args.accuracy or args.larger:
         sys.path.append(os.path.join(HERE, "..", "tests"))  # stopping.py's references (after benchmarks/)
         if args.accuracy:

@@ -108,7 +108,7 @@ class EigenbasisADMM(PairsState):
         self.arrays["X"] = self.arrays["U"]
         self.mesh = mesh = DeviceMesh(ops, sc, device)
         k = all_pairs_kernels(sc, setup.W)
-        nb, W, m, n = setup.nb, setup.W, self.m, self.n
+        nb, m = setup.nb, self.m
         span = thread_span(device, nb, nb, m)
         a = self.arrays
         self.element = wp.launch(k.element_step, row_dim(m, span, nb), device=device, record_cmd=True,
