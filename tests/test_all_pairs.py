@@ -96,7 +96,7 @@ def test_worker_processes_give_the_same_matrix():
 
 def _full_admm(V, F, alpha_hat, iterations):
     """docs/method.md section 5 verbatim on dense arrays (X, R, U, Z, Q, Y, S, H, K), exact linear solves."""
-    tol = wrd.AllPairsOptions()
+    tol = wrd.AllPairsOptions().for_engine("consensus")
     a_f, _ = rs.face_geometry(V, F)
     G = rs.gradient_matrices(V, F)
     A_V = rs.vertex_areas(V, F)

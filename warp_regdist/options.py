@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SolverOptions", "AllPairsOptions", "DEFAULT_ACCURACY"]
+__all__ = ["SolverOptions", "AllPairsOptions", "DEFAULT_ACCURACY", "ENGINE_PENALTIES"]
 
 DEFAULT_ACCURACY = 0.005
 """The max error, in units of the max distance, that the all-pairs residual tolerances were chosen for."""
@@ -30,6 +30,9 @@ estimate at accuracy 0.01 on small irregular meshes)."""
 
 _EXCESS_SHARE = 1.0
 """All pairs: eps_excess = accuracy."""
+
+ENGINE_PENALTIES = {"consensus": (0.5, 8.0, 30.0), "eigenbasis": (2.0, 32.0, 100.0)}
+"""All pairs: each engine's (rho0, rho_max, rho_doubling), where the options leave them None."""
 
 
 def _check_number(name, value, low=0.0, strict=False, infinite=False, integer=False):
@@ -51,6 +54,7 @@ class _Options:
     _POSITIVE = ()     # fields that must be > 0 (the others >= 0)
     _INTEGERS = ()     # fields that are integers >= 1
     _CHOICES = {}      # fields that take one of a few strings
+    _OPTIONAL = ()     # fields that may be None (a default chosen later)
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -63,6 +67,8 @@ class _Options:
             elif field.type == "bool" or isinstance(field.default, bool):
                 if not isinstance(value, (bool, np.bool_)):
                     raise ValueError(f"expected {field.name} as True or False, got {value!r}")
+            elif value is None and field.name in self._OPTIONAL:
+                pass
             elif field.name in self._CHOICES:
                 if not (isinstance(value, str) and value in self._CHOICES[field.name]):
                     raise ValueError(f"expected {field.name} as one of {', '.join(map(repr, self._CHOICES[field.name]))}, "
@@ -180,8 +186,10 @@ class AllPairsOptions(_Options):
     change_window, max_iterations : int
     relaxation : float
         Over-relaxation of all three steps.
-    rho0, rho_max, rho_doubling : float
-        rho_k = L min(rho_max, rho0 2^(k / rho_doubling)).
+    rho0, rho_max, rho_doubling : float or None
+        rho_k = L min(rho_max, rho0 2^(k / rho_doubling)); None: the engine's own,
+        ``ENGINE_PENALTIES`` (the eigenbasis engine's U-step is exact at any penalty and converges
+        sooner on a schedule four times higher and three times slower).
     rho2_factor : float
         The consensus penalty rho2 = rho2_factor rho^2 / (L A).
     schedule : object or None
@@ -208,9 +216,9 @@ class AllPairsOptions(_Options):
     change_window: int = 50
     max_iterations: int = 3000
     relaxation: float = 1.7
-    rho0: float = 0.5
-    rho_max: float = 8.0
-    rho_doubling: float = 30.0
+    rho0: float = None
+    rho_max: float = None
+    rho_doubling: float = None
     rho2_factor: float = 25.0
     schedule: object = None
     cg_fraction: float = 1e-3
@@ -221,6 +229,13 @@ class AllPairsOptions(_Options):
 
     _INFINITE = ("eps_change", "eps_excess", "rho_doubling")
     _CHOICES = {"engine": ("auto", "eigenbasis", "consensus")}
+    _OPTIONAL = ("rho0", "rho_max", "rho_doubling")
+
+    def for_engine(self, engine):
+        """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties
+        (``ENGINE_PENALTIES``) in the penalty fields left None."""
+        defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINE_PENALTIES[engine]))
+        return self.replace(engine=engine, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
     _POSITIVE = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")
     _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations")

@@ -148,7 +148,8 @@ class AllPairsSolver:
         self.operators = ops = build_operators(mesh, self.triangulation)
         self._excess = functools.partial(gradient_excess, ops.grad, ops.diameters)
         self._steepest = functools.partial(steepest_element, ops.grad, ops.diameters)
-        self._penalty_mid = _penalty_mid(PenaltySchedule.of(self.options, ops.length_scale), ops.length_scale)
+        self._penalty_mid = _penalty_mid(PenaltySchedule.of(self.options.for_engine("consensus"), ops.length_scale),
+                                         ops.length_scale)
         self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device,
                                                 self.engine(self.options)))
 
@@ -245,6 +246,7 @@ class AllPairsSolver:
             raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: "
                              f"{os.fspath(resume)!r} and {os.fspath(initial)!r}")
         engine = self.engine(run_options)
+        run_options = run_options.for_engine(engine)
         fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation,
                                           engine)
         size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, run_options.max_iterations)
