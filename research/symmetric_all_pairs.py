@@ -11,9 +11,10 @@ are split (Z = G U; the rows' follow by symmetry), so there is no consensus vari
     U-step  (alpha + rho/2)(W U M + M U W) = A A^T + sym(D (rho Z - Y) M) + Diag(mu),  diag(U) = 0
     Z-step  Z = face projection onto |g| <= 1 of relaxed G U + Y / rho,  Y += rho (relaxed G U - Z)
 
-(M = diag(A_V), W the stiffness, D = G^T M_F; relaxation 1.7, fixed rho). The U-step is exact:
+(M = diag(A_V), W the stiffness, D = G^T M_F; relaxation 1.7, fixed rho). The U-step is exact, the
+package's eigenbasis engine's (warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisUStep):
 with W' = M^(-1/2) W M^(-1/2) = Phi Lambda Phi^T, X = M^(1/2) U M^(1/2) solves
-W' X + X W' = C entrywise in the eigenbasis (8 dense n x n products per iteration), and the
+W' X + X W' = C entrywise in the eigenbasis (6 dense n x n products per iteration), and the
 diagonal's multipliers mu solve an (n + 1) system whose matrix, the diagonal of the response
 to each Diag(e_k), is sum_pq Phi_ip Phi_kp Phi_iq Phi_kq / (lambda_p + lambda_q), the integral
 of the squared heat kernel (trapezoid rule in log t). Counts the iterations until U stays
@@ -53,21 +54,10 @@ import meshes  # noqa: E402
 import stopping  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
+from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep  # noqa: E402
 from warp_regdist.solvers.multigrid import prolongator  # noqa: E402
 
 LEVELS = (0.01, 0.005, 0.002)
-
-
-def diagonal_response(Phi, lam, nodes=80):
-    """K_ik = sum_(p,q) != (0,0) Phi_ip Phi_kp Phi_iq Phi_kq / (lam_p + lam_q) (n, n), as the integral over
-    t of H_t(i,k)^2 - (phi0_i phi0_k)^2, H_t = Phi e^(-lam t) Phi^T, by the trapezoid rule in log t."""
-    s = np.linspace(np.log(1e-4 / lam[-1]), np.log(60 / lam[1]), nodes)
-    K, P1, F0 = np.zeros((len(lam),) * 2), Phi[:, 1:], np.outer(Phi[:, 0], Phi[:, 0])
-    for sk in s:
-        t = np.exp(sk)
-        H1 = (P1 * np.exp(-lam[1:] * t)) @ P1.T
-        K += H1 * (H1 + 2 * F0) * (t * (s[1] - s[0]))
-    return K
 
 
 class TensorMultigrid:
@@ -156,35 +146,17 @@ class SymmetricADMM:
         ops = wrd.build_operators(mesh, triangulation)
         self.G = ops.grad.tocsr()
         self.D = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()
-        self.AV, self.L, n = ops.vertex_volumes, ops.length_scale, mesh.n_vertices
+        self.AV, self.L = ops.vertex_volumes, ops.length_scale
         self.element_volumes = ops.element_volumes
         self.alpha, self.m = alpha_hat * ops.length_scale, mesh.n_elements
-        self.s = 1 / np.sqrt(self.AV)
-        lam, self.Phi = np.linalg.eigh(self.s[:, None] * ops.stiffness.toarray() * self.s[None, :])
-        lam[0] = 0.0
-        d = lam[:, None] + lam[None, :]
-        self.dinv = np.where(d > 0, 1 / np.where(d > 0, d, 1.0), 0.0)
-        border = np.zeros((n + 1, n + 1))
-        border[:n, :n] = self.s[:, None] ** 2 * diagonal_response(self.Phi, lam)
-        border[:n, n], border[n, :n] = 1.0, self.AV
-        self.border = sl.lu_factor(border)
+        self.u_step = EigenbasisUStep(ops.stiffness, self.AV)  # the package's eigenbasis engine's U-step
+        self.Phi, self.s, self.dinv, self.border = self.u_step.Phi, self.u_step.s, self.u_step.dinv, self.u_step.border
         self.stiffness = ops.stiffness
 
     @functools.cached_property
     def multigrid(self):
         """The TensorMultigrid of W U M + M U W (set up on first use: the exact U-step needs none)."""
         return TensorMultigrid(self.stiffness, self.AV)
-
-    def u_step(self, R, scale):
-        """The symmetric U with zero diagonal solving scale (W U M + M U W) = R + Diag(mu)."""
-        Phi, s, dinv, n = self.Phi, self.s, self.dinv, len(self.AV)
-        C = s[:, None] * R * s[None, :]
-        PY = Phi @ ((Phi.T @ C @ Phi) * dinv)
-        diag = np.einsum("ij,ij->i", PY, Phi) / scale
-        sol = sl.lu_solve(self.border, np.concatenate([-s ** 2 * diag, [-R.sum() / scale]]))
-        X = (PY + Phi @ (((Phi.T * (scale * sol[:n])) @ Phi) * dinv)) @ Phi.T / scale
-        U = s[:, None] * X * s[None, :] + sol[n]
-        return 0.5 * (U + U.T)
 
     def iterates(self, rho, relaxation=1.7, inner_tol=None):
         """Yield (U, PCG iterations so far, Y) after each iteration at the penalty ``rho`` (a number, or

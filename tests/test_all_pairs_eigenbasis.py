@@ -115,3 +115,21 @@ def test_warm_start_from_a_consensus_run_reaches_the_minimizer(bumpy42, tmp_path
     res = wrd.all_pairs(mesh, 0.03, device="cpu", engine="eigenbasis", initial=path, accuracy=0.002)
     assert res.converged
     assert np.abs(res.distance - refs[0.03]).max() <= 0.002 * refs[0.03].max()
+
+
+def test_cli_engine(bumpy42, tmp_path, capsys):
+    from warp_regdist.cli import main
+
+    mesh, refs = bumpy42
+    path, out = tmp_path / "bumpy.off", tmp_path / "U.npy"
+    with open(path, "w") as f:
+        f.write(f"OFF\n{mesh.n_vertices} {mesh.n_elements} 0\n")
+        f.writelines(f"{x!r} {y!r} {z!r}\n" for x, y, z in np.asarray(mesh.vertices).tolist())
+        f.writelines(f"3 {a} {b} {c}\n" for a, b, c in np.asarray(mesh.elements))
+    for engine in ("auto", "consensus"):
+        assert main(["allpairs", str(path), "--output", str(out), "--device", "cpu", "--engine", engine]) == 0
+        assert np.abs(np.load(out) - refs[0.03]).max() <= 0.005 * refs[0.03].max()
+        shown = "eigenbasis" if engine == "auto" else engine
+        assert f"ADMM iterations ({shown} engine)" in capsys.readouterr().out
+    assert main(["allpairs", str(path), "--output", str(out), "--engine", "dense"]) == 2
+    assert "argument --engine: invalid choice: 'dense'" in capsys.readouterr().err

@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     write_matrix(args.output, U, args.checkpoint)
     if not args.quiet:
         print(f"{os.path.basename(args.mesh)}: {n} vertices. All-pairs regularized distance, "
-              f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations, "
+              f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations ({result.engine} engine), "
               f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
               f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} and gradient excess "
               f"{result.gradient_excess:.2%} of the largest distance {result.distance.max():.4g}. Wrote {args.output}.")

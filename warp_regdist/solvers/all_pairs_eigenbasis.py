@@ -93,6 +93,8 @@ class EigenbasisADMM(PairsState):
     :class:`~warp_regdist.solvers.all_pairs_run.PairsRun` drives: the arrays X (the same array as U),
     U, H (zero), DZ, DZ_acc, DY_acc and v, one process (BLAS threads run the U-step)."""
 
+    engine = "eigenbasis"
+
     def __init__(self, ops, alpha_hat, device, dtype, options, u_step):
         self.setup = setup = _Setup(ops, alpha_hat, dtype, options, None, 1)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha

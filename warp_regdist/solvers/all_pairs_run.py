@@ -32,14 +32,15 @@ def _estimate(change):
 
 def final_result(saved, memory, checkpoint):
     """The result recorded in the checkpoint of a converged run."""
-    n = int(json.loads(str(saved["fingerprint"]))["n_vertices"])
+    fingerprint = json.loads(str(saved["fingerprint"]))
+    n = int(fingerprint["n_vertices"])
     return AllPairsResult(distance=np.maximum(saved["U"].reshape(n, -1)[:, :n], 0).astype(np.float64),
                           iterations=int(saved["iteration"]),
                           converged=True, interrupted=False, residuals=saved["residuals"], tolerance=saved["tolerance"],
                           history=saved["history"], **_estimate(float(saved["change"][1]) if "change" in saved else math.inf),
                           cg_iterations=int(saved["cg_iterations"]), seconds=float(saved["seconds"]),
                           memory_bytes=memory, checkpoint=None if checkpoint is None else os.fspath(checkpoint),
-                          checkpoint_iteration=None)
+                          checkpoint_iteration=None, engine=fingerprint["engine"])
 
 
 class PairsRun:
@@ -213,4 +214,5 @@ class PairsRun:
                               cg_iterations=self.cg_total, seconds=self._elapsed(),
                               memory_bytes=self.memory,
                               checkpoint=None if self.checkpoint is None else self.checkpoint.path,
-                              checkpoint_iteration=None if self.checkpoint is None else self.checkpoint.saved_at)
+                              checkpoint_iteration=None if self.checkpoint is None else self.checkpoint.saved_at,
+                              engine=st.engine)

@@ -256,6 +256,8 @@ class SymmetricADMM(PairsState):
     column or per consensus tile row, so the iterates do not depend on the split.
     """
 
+    engine = "consensus"
+
     def __init__(self, ops, alpha_hat, device, dtype, options, penalty_mid, workers, auto_workers=False,
                  hierarchy=None):
         n = ops.vertex_volumes.size

@@ -199,4 +199,6 @@ class AllPairsResult(OptimizeResult):
     checkpoint, checkpoint_iteration : str or None, int or None
         The checkpoint file, and the iteration of the state it holds (None where this run wrote none:
         its saves failed, or it resumed a converged run's final checkpoint).
+    engine : {"eigenbasis", "consensus"}
+        The splitting that computed it (``AllPairsOptions.engine``, "auto" resolved).
     """
