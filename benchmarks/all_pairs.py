@@ -9,6 +9,7 @@
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping     # 300-500 vertices against long runs
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping --triangulations mesh intrinsic
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping    # eigenbasis against consensus engine
+    python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 1000
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -39,7 +40,9 @@ With ``--engines``: both engines (``AllPairsOptions.engine``) at accuracy 0.01 a
 the exact cases of tests/data (the mesh's operators) and on ``LARGER`` (intrinsic operators, against
 the long runs in ``--cache``); then each engine's setup and time per iteration (``ENGINE_COST_ITERATIONS``
 iterations, float32 and float64) on cat_rr decimated to 1,000 vertices and on cat_rr itself, the sizes
-that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv.
+that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv. With
+``--decimate N`` only the runs on cat_rr decimated to about N vertices (alpha_hat 0.03), against its own
+5,000-iteration reference, into benchmarks/results/all_pairs_engines_N.csv.
 """
 
 import argparse
@@ -104,13 +107,13 @@ def exact_cases(cache):
     return cases
 
 
-def larger_cases(cache, triangulation="mesh"):
-    """Yield (name, mesh, alpha_hat, reference) of ``LARGER`` on ``triangulation``, each reference computed
-    once into ``cache``."""
+def larger_cases(cache, triangulation="mesh", cases=LARGER):
+    """Yield (name, mesh, alpha_hat, reference) of ``cases`` (default ``LARGER``) on ``triangulation``, each
+    reference computed once into ``cache``."""
     import stopping
     from symmetric_all_pairs import SymmetricADMM
 
-    for name, vertices, alpha_hat in LARGER:
+    for name, vertices, alpha_hat in cases:
         mesh = stopping.decimated(name, vertices)
         key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
         key += "" if triangulation == "mesh" else f" {triangulation}"
@@ -180,6 +183,9 @@ def main():
     parser.add_argument("--cache", default=None, help="with --accuracy: benchmarks/stopping.py's cache of minimizers")
     parser.add_argument("--larger", action="store_true", help="accuracy= on LARGER against long symmetric runs")
     parser.add_argument("--engines", action="store_true", help="both engines on the exact cases and LARGER, and their costs")
+    parser.add_argument("--decimate", type=int, default=None, metavar="N",
+                        help="with --engines: only cat_rr decimated to about N vertices (its own reference; "
+                        "all_pairs_engines_N.csv)")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
@@ -190,11 +196,17 @@ def main():
     if args.engines:
         sys.path.append(os.path.join(HERE, "..", "tests"))
         engines = ("eigenbasis", "consensus")
-        rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
-        rows += accuracy_rows(larger_cases(args.cache, "intrinsic"), LARGER_ACCURACIES, triangulation="intrinsic",
-                              engines=engines)
-        write_csv(rows + engine_cost_rows(), ENGINES_RESULTS)
-        print(f"wrote {ENGINES_RESULTS}")
+        if args.decimate:
+            output = ENGINES_RESULTS.replace(".csv", f"_{args.decimate}.csv")
+            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", (("cat_rr", args.decimate, 0.03),)),
+                                 LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
+        else:
+            output = ENGINES_RESULTS
+            rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
+            rows += accuracy_rows(larger_cases(args.cache, "intrinsic"), LARGER_ACCURACIES, triangulation="intrinsic",
+                                  engines=engines) + engine_cost_rows()
+        write_csv(rows, output)
+        print(f"wrote {output}")
         return 0
     if args.accuracy or args.larger:
         sys.path.append(os.path.join(HERE, "..", "tests"))  # stopping.py's references (after benchmarks/)

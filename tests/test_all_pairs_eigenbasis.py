@@ -133,3 +133,22 @@ def test_cli_engine(bumpy42, tmp_path, capsys):
         assert f"ADMM iterations ({shown} engine)" in capsys.readouterr().out
     assert main(["allpairs", str(path), "--output", str(out), "--engine", "dense"]) == 2
     assert "argument --engine: invalid choice: 'dense'" in capsys.readouterr().err
+
+
+def test_interrupt_returns_the_iterate_and_resumes_to_the_uninterrupted_matrix(bumpy42, tmp_path):
+    import signal
+
+    mesh, _ = bumpy42
+    whole = _quiet(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=30)
+    path = tmp_path / "run.npz"
+
+    def ctrl_c(progress):
+        if progress.iteration == 8:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    cut = wrd.all_pairs(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=30, checkpoint=path,
+                        callback=ctrl_c)
+    assert cut.interrupted and not cut.converged and cut.iterations == 9 and cut.engine == "eigenbasis"
+    assert np.array_equal(cut.distance, cut.distance.T) and cut.distance.max() > 0
+    rest = _quiet(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=30, resume=path)
+    assert not rest.interrupted and np.array_equal(rest.distance, whole.distance)
