@@ -216,7 +216,7 @@ def test_worker_columns_do_not_depend_on_the_environment(monkeypatch):
     V, F = meshes.icosphere(2, 1.0)
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=5), F)
     sets = [[j] for j in range(9)]  # two lane blocks of 8: one per process
-    with wrd.DistanceSolver(mesh, 0.05, workers=2, engine="consensus") as solver:
+    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
         split = solver.solve_many(sets)
         alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)
     np.testing.assert_array_equal(split.distance, alone.distance)
@@ -234,7 +234,7 @@ def test_workers_run_under_the_callers_options():
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=6), F)
     sets = [[j] for j in range(9)]
     changed = dict(eps_rel=1e-4, eps_rel_dual=0.05, change_window=5)
-    with wrd.DistanceSolver(mesh, 0.05, workers=2, engine="consensus") as solver:
+    with wrd.DistanceSolver(mesh, 0.05, workers=2) as solver:
         split = solver.solve_many(sets, **changed)
     alone = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets, **changed)
     default = wrd.DistanceSolver(mesh, 0.05, workers=1, hierarchy=solver.hierarchy).solve_many(sets)

@@ -48,12 +48,13 @@ def diagonal_response(Phi, lam, nodes=80):
 class EigenbasisUStep:
     """The exact U-step: the symmetric U with zero diagonal that solves
 
-        scale (W U M + M U W) = R + Diag(mu) + c A_V A_V^T-orthogonal constant,   diag(U) = 0,
+        scale (W U M + M U W) = R + Diag(mu),   diag(U) = 0,
 
-    for symmetric R (n, n), W the stiffness (n, n), M = diag(A_V) (the constant mode of U, which W
-    does not see, is fixed by the (n + 1)-th equation sum(R + Diag(mu)) = 0). Set up once: the
+    for symmetric R (n, n), W the stiffness (n, n), M = diag(A_V). The multipliers mu (n,) and U's
+    constant part c (which W does not see) solve one bordered system: diag(U) = 0 (n equations) and
+    sum(R + Diag(mu)) = 0 (the right-hand side has no constant part). Set up once: the
     eigendecomposition of M^(-1/2) W M^(-1/2) (float64, then ``dtype``) and the LU factors of the
-    diagonal's bordered system; each call is six n x n matrix products in ``dtype``.
+    bordered system; each call is six n x n matrix products in ``dtype``.
     """
 
     def __init__(self, stiffness, vertex_volumes, dtype="float64"):
@@ -78,7 +79,8 @@ class EigenbasisUStep:
         C = (s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]
         PY = Phi @ ((Phi.T @ C @ Phi) * dinv)
         diag = np.einsum("ij,ij->i", PY, Phi, dtype=np.float64) / scale
-        sol = sl.lu_solve(self.border, np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]]))
+        rhs = np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]])
+        sol = sl.lu_solve(self.border, rhs)  # the scaled multipliers M^(-1) mu / scale, and c
         PY += Phi @ (((Phi.T * self.dtype.type(scale)) * sol[:n].astype(self.dtype)) @ Phi * dinv)
         U = (PY @ Phi.T) * self.dtype.type(1 / scale)
         U = s[:, None] * U * s[None, :] + self.dtype.type(sol[n])
