@@ -82,7 +82,8 @@ at the column's own vertex (docs/design/all-pairs.md)."""
 
 class AllPairsSolver:
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) of a connected triangle mesh,
-    set up once (operators, multigrid hierarchy, memory estimate) and solved by :meth:`solve`.
+    set up once (operators, memory estimate; the engine's multigrid hierarchy or eigenvectors on first use)
+    and solved by :meth:`solve`.
 
     Parameters
     ----------
@@ -95,7 +96,8 @@ class AllPairsSolver:
     dtype : {"float64", "float32"}
         Precision of the solver's arrays; float32 halves the memory.
     workers : int or None
-        CPU processes that share every step (at most one per column block). None: the cores
+        CPU processes that share every step of the consensus engine (at most one per column block; the
+        eigenbasis engine runs in one process, its products on BLAS threads). None: the cores
         available to this process, at most one per 10^6 pairs (a worker takes a few seconds to
         start). Ignored on CUDA and off Linux. The result does not depend on it.
     options : AllPairsOptions or None
