@@ -1,16 +1,20 @@
 """Cost of a backward pass (``DistanceResult.vjp``) against the forward solve it differentiates.
 
-    python benchmarks/gradients.py            # spot_rr (packaged) and the 100k cube sphere
+    python benchmarks/gradients.py            # spot_rr, the 100k cube sphere, tet cubes of 4,096 and 17,576 vertices
     python benchmarks/gradients.py --small    # spot_rr only
 
 Per mesh (one source, alpha_hat 0.05, float64, one process), in one process: the forward solve
-(``solve``, after a warm-up solve that compiles the kernels) and the vjp of a random loss gradient,
-median of 3 (1 on the 100k sphere). Columns: seconds of each, their ratio, the Newton steps of the
-smoothed problem, and smoothing_change (max |u_mu - u| / max u). Prints a markdown table and
-writes benchmarks/results/gradients.csv.
+(``solve``, after a warm-up solve that compiles the kernels) and the vjp of a random loss gradient
+with each factorization of its Newton systems (``gradient_factorization`` "superlu", and "pardiso"
+where MKL is installed), median of 3 (1 on the 100k sphere and the 17k cube). Columns: seconds of
+each, the backward's ratio to the forward, the Newton steps of the smoothed problem, smoothing_change
+(max |u_mu - u| / max u), and the largest difference between the two factorizations' position
+gradients relative to the largest entry. Prints a markdown table and writes
+benchmarks/results/gradients.csv.
 """
 
 import argparse
+import importlib.util
 import os
 import statistics
 import sys
@@ -23,6 +27,15 @@ sys.path.insert(0, HERE)
 import meshes  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
+from warp_regdist.solvers.gradients import factorization_backend  # noqa: E402
+
+
+def cube_tets(n):
+    """tests/meshes.py's tetrahedral cube (benchmarks/ has its own meshes module)."""
+    spec = importlib.util.spec_from_file_location("test_meshes", os.path.join(HERE, "..", "tests", "meshes.py"))
+    test_meshes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(test_meshes)
+    return test_meshes.cube_tets(n)
 
 RESULTS = os.path.join(HERE, "results", "gradients.csv")
 
@@ -31,21 +44,34 @@ def cases(small):
     yield "spot_rr", wrd.load_mesh(wrd.data_path("spot_rr.off")), 2272, 3
     if not small:
         yield "sphere_100k", meshes.cube_sphere(129), 0, 1
+        yield "tet_cube_15", wrd.Mesh(*cube_tets(15)), 0, 3
+        yield "tet_cube_25", wrd.Mesh(*cube_tets(25)), 0, 1
 
 
-def run(name, mesh, source, repeats):
-    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
-    solver.solve([source])
+def run(name, mesh, source, repeats, factorizations):
+    solvers = {f: wrd.DistanceSolver(mesh, 0.05, workers=1, options=wrd.SolverOptions(gradient_factorization=f))
+               for f in factorizations}
+    solvers[factorizations[0]].solve([source])
     b = np.random.default_rng(0).random(mesh.n_vertices)
-    forward, backward = [], []
+    forward, backward, grads = [], {f: [] for f in factorizations}, {}
     for _ in range(repeats):
-        res = solver.solve([source])
-        g = res.vjp(b)
+        res = solvers[factorizations[0]].solve([source])
         forward.append(res.seconds)
-        backward.append(g.seconds)
-    f, s = statistics.median(forward), statistics.median(backward)
-    return dict(mesh=name, vertices=mesh.n_vertices, admm_iterations=res.iterations, forward_s=f, backward_s=s,
-                ratio=s / f, newton_steps=g.newton_iterations, smoothing_change_pct=100.0 * g.smoothing_change)
+        for f in factorizations:
+            res.solver = solvers[f]
+            grads[f] = res.vjp(b)
+            backward[f].append(grads[f].seconds)
+    fwd = statistics.median(forward)
+    g = grads[factorizations[0]]
+    row = dict(mesh=name, vertices=mesh.n_vertices, admm_iterations=res.iterations, forward_s=fwd)
+    for f in factorizations:
+        row[f"backward_{f}_s"] = statistics.median(backward[f])
+        row[f"ratio_{f}"] = row[f"backward_{f}_s"] / fwd
+    row.update(newton_steps=g.newton_iterations, smoothing_change_pct=100.0 * g.smoothing_change)
+    if len(factorizations) > 1:
+        a, c = (grads[f].vertices for f in factorizations)
+        row["gradient_difference"] = float(np.abs(a - c).max() / np.abs(a).max())
+    return row
 
 
 def main():
@@ -56,9 +82,10 @@ def main():
     import warp as wp
     wp.config.quiet = True
     rows = []
+    factorizations = ("superlu",) + (("pardiso",) if factorization_backend("auto") == "pardiso" else ())
     for name, mesh, source, repeats in cases(args.small):
         print(f"running {name} ...", file=sys.stderr, flush=True)
-        rows.append(run(name, mesh, source, repeats))
+        rows.append(run(name, mesh, source, repeats, factorizations))
         write_csv(rows, args.out)
     print(markdown_table(rows))
     print(f"wrote {args.out}")

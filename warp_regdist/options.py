@@ -127,6 +127,10 @@ class SolverOptions(_Options):
     gradient_smoothing : float
         mu_hat of ``vjp`` and ``polish``: the barrier weight of the smoothed problem whose
         minimizer is differentiated (docs/method.md section 10).
+    gradient_factorization : str
+        The sparse factorization of ``vjp``'s and ``polish``'s Newton systems: "pardiso" (MKL
+        PARDISO's Cholesky, threaded, the ``[pardiso]`` extra), "superlu" (scipy), or "auto"
+        (PARDISO where it is installed).
     capture : bool
         On the CPU, replay each iteration as one captured Warp graph (False: the same launches one
         by one; the same numbers).
@@ -156,6 +160,7 @@ class SolverOptions(_Options):
     cg_max_iterations: int = 500
     max_gradient: float = 1.5
     gradient_smoothing: float = 1e-6
+    gradient_factorization: str = "auto"
     capture: bool = True
     check_every: object = None
     cpu_blocks: int = 1
@@ -164,6 +169,7 @@ class SolverOptions(_Options):
     _POSITIVE = ("eps_rel", "eps_rel_dual", "relaxation", "rho0", "rho_max", "rho_doubling", "cg_fraction",
                  "cg_primal_fraction", "cg_rtol", "max_gradient", "gradient_smoothing")
     _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations", "cpu_blocks")
+    _CHOICES = {"gradient_factorization": ("auto", "pardiso", "superlu")}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,7 +22,8 @@ barrier has the same weight (mean element volume), not its own volume: with a_e 
 of a thousandth of the mean area keeps Newton's method from converging. u_mu is found by Newton's
 method (steps that keep a tenth of every element's slack 1 - |g|^2, then backtracking), from the
 ADMM distance, along mu_hat = 10^-2, 10^-3, ... down to the final mu_hat, with a predictor step
-along the central path's tangent between levels; H is factorized by scipy's SuperLU.
+along the central path's tangent between levels; H is factorized by MKL PARDISO's Cholesky
+(the ``[pardiso]`` extra) or scipy's SuperLU (``options.gradient_factorization``).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from scipy.optimize import OptimizeResult
 from ..errors import ConvergenceWarning
 from ..geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
 from ..kernels import adjoint
+from .pardiso import PardisoCholesky, PardisoError, load_mkl
 
 __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
            "vector_jacobian_product"]
@@ -71,6 +73,9 @@ class Gradients(OptimizeResult):
         where Newton's method stalled at it (with a ConvergenceWarning).
     newton_iterations : int
         Newton steps summed over columns.
+    factorization : str
+        The sparse factorization of the Newton systems, "pardiso" or "superlu"
+        (``options.gradient_factorization``).
     seconds : float
     points : (p, 3) ndarray or list of them
         After a solve from points: dL/db for each point's barycentric coordinates b on its face (the
@@ -80,26 +85,57 @@ class Gradients(OptimizeResult):
     """
 
 
-class _Factor:
-    """Solves of the SPD matrix H (CSC) by SuperLU on D H D, D = diag(H)^(-1/2) (a symmetric ordering,
-    no pivoting), each with one step of iterative refinement: H's condition reaches 1e12 and more."""
+def factorization_backend(name):
+    """The factorization ``name`` ("auto", "pardiso" or "superlu") resolves to: "auto" is "pardiso"
+    where MKL loads, else "superlu"; "pardiso" without MKL is a ValueError."""
+    if name == "superlu":
+        return name
+    try:
+        load_mkl()
+    except OSError as err:
+        if name == "auto":
+            return "superlu"
+        raise ValueError(f"expected gradient_factorization 'pardiso' to find MKL (pip install "
+                         f"'warp-regdist[pardiso]', x86-64 only), got {err}") from None
+    return "pardiso"
 
-    def __init__(self, H):
+
+class _Factor:
+    """Solves of the SPD matrix H (CSC) through D H D, D = diag(H)^(-1/2), each with one step of
+    iterative refinement (H's condition reaches 1e12 and more). ``backend`` "pardiso": MKL PARDISO's
+    Cholesky of the upper triangle (nested dissection ordering, threaded; SuperLU where it finds a
+    non-positive pivot); "superlu": scipy's SuperLU with a symmetric ordering and no pivoting."""
+
+    def __init__(self, H, backend):
         self.H, self.d = H, 1.0 / np.sqrt(H.diagonal())
         D = sp.diags(self.d)
-        self.lu = spla.splu((D @ H @ D).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+        scaled = (D @ H @ D).tocsc()
+        self.pardiso = None
+        if backend == "pardiso":
+            try:
+                self.pardiso = PardisoCholesky(scaled)
+                return
+            except PardisoError:
+                pass
+        self.lu = spla.splu(scaled, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                             options=dict(SymmetricMode=True))
 
+    def _scaled_solve(self, b):
+        if self.pardiso is None:
+            return self.lu.solve(b)
+        return self.pardiso.solve(b)
+
     def solve(self, b):
-        x = self.d * self.lu.solve(self.d * b)
-        return x + self.d * self.lu.solve(self.d * (b - self.H @ x))
+        x = self.d * self._scaled_solve(self.d * b)
+        return x + self.d * self._scaled_solve(self.d * (b - self.H @ x))
 
 
 class SmoothedProblem:
     """The smoothed problem of one column (module docstring): operators of a Mesh (``ops``),
-    alpha, mu_hat, and ``free`` (n,) bool, the vertices that are neither sources nor unreachable."""
+    alpha, mu_hat, ``free`` (n,) bool, the vertices that are neither sources nor unreachable, and the
+    ``factorization`` of its Newton systems ("superlu" or "pardiso", :func:`factorization_backend`)."""
 
-    def __init__(self, ops, alpha, mu_hat, free):
+    def __init__(self, ops, alpha, mu_hat, free, factorization="superlu"):
         m = ops.element_volumes.size
         self.ops, self.alpha = ops, float(alpha)
         self.mu = float(mu_hat) * ops.total_volume * ops.length_scale / m
@@ -108,6 +144,7 @@ class SmoothedProblem:
         self.load = ops.vertex_volumes[free]
         self.mu_hat = float(mu_hat)
         self.scale = ops.total_volume * ops.length_scale    # the units of F
+        self.factorization = factorization
 
     def _g(self, v):
         g = (self.G @ v).reshape(self.m, 3)
@@ -149,7 +186,7 @@ class SmoothedProblem:
         last = np.inf
         for count in range(1, _MAX_NEWTON + 1):
             grad, H = self.gradient_hessian(v, mu)
-            lu = _Factor(H)
+            lu = _Factor(H, self.factorization)
             step = -lu.solve(grad)
             decrement = -grad @ step
             if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):
@@ -241,15 +278,19 @@ class SmoothedSolution(NamedTuple):
     change: float
 
 
-def smoothed_solution(solver, distance, sources, column=0, mu_hat=None):
+def smoothed_solution(solver, distance, sources, column=0, options=None):
     """The :class:`SmoothedSolution` of ``solver``'s problem from vertex ``sources``, by Newton's method
     from ``distance`` (n,), a converged solve's (``column`` names the source set in errors), at the
-    barrier weight ``mu_hat`` (None: the solver's ``options.gradient_smoothing``)."""
-    mu_hat = float(solver.options.gradient_smoothing if mu_hat is None else mu_hat)
+    barrier weight ``options.gradient_smoothing`` with ``options.gradient_factorization``
+    (a :class:`~warp_regdist.SolverOptions`; None: the solver's)."""
+    options = solver.options if options is None else options
+    mu_hat = float(options.gradient_smoothing)
     sources, reachable = solver.source_mask(sources, column)
     free = reachable.copy()
     free[sources] = False
-    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free).minimize(distance[free])
+    backend = factorization_backend(options.gradient_factorization)
+    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free, backend).minimize(
+        distance[free])
     if reached > mu_hat:
         warnings.warn(f"the smoothed problem of source set {column} was solved at gradient_smoothing {reached:g}, not "
                       f"{mu_hat:g}: at the smaller value an element's slack 1 - |grad u|^2 fell below what float64 "
@@ -273,16 +314,17 @@ def adjoint_gradients(solver, solution, b):
     return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
 
 
-def vector_jacobian_product(solver, distance, source_sets, grad_u, mu_hat=None):
+def vector_jacobian_product(solver, distance, source_sets, grad_u, options=None):
     """The :class:`Gradients` of sum(grad_u * distance) (module docstring) for the columns of a
-    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k); the
-    smoothing ``mu_hat`` as in :func:`smoothed_solution`."""
+    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k);
+    ``options`` as in :func:`smoothed_solution`."""
+    options = solver.options if options is None else options
     t0 = time.perf_counter()
     n, k = distance.shape
     vertices, alpha_hat, steps, change, smoothing = np.zeros((n, 3)), 0.0, 0, 0.0, 0.0
     smoothed = np.zeros((n, k))
     for j in range(k):
-        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j, mu_hat)
+        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j, options)
         dx, da = adjoint_gradients(solver, solution, grad_u[:, j])
         vertices += dx
         alpha_hat += da
@@ -291,4 +333,6 @@ def vector_jacobian_product(solver, distance, source_sets, grad_u, mu_hat=None):
         change = max(change, solution.change)
         smoothed[:, j] = solution.distance
     return Gradients(vertices=vertices, alpha_hat=alpha_hat, smoothed_distance=smoothed, smoothing_change=change,
-                     smoothing=smoothing, newton_iterations=steps, seconds=time.perf_counter() - t0)
+                     smoothing=smoothing, newton_iterations=steps,
+                     factorization=factorization_backend(options.gradient_factorization),
+                     seconds=time.perf_counter() - t0)

@@ -66,8 +66,8 @@ class DistanceResult(OptimizeResult):
         object.__setattr__(self, "_problem", (solver, source_sets, options, surface))
 
     def _smoothable(self, verb):
-        """(solver, source sets, distance (n', k) on the solver's mesh, one column?, mu_hat, surface
-        sources or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the
+        """(solver, source sets, distance (n', k) on the solver's mesh, one column?, the solve's options,
+        surface sources or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the
         operation in their messages)."""
         solver, source_sets, options, surface = vars(self).get("_problem", (None, None, None, None))
         if solver is None:
@@ -82,15 +82,16 @@ class DistanceResult(OptimizeResult):
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
         distance = np.asarray(self.distance if surface is None else self.refined_distance)
         one = distance.ndim == 1
-        mu_hat = (solver.options if options is None else options).gradient_smoothing
-        return solver, source_sets, distance[:, None] if one else distance, one, mu_hat, surface
+        options = solver.options if options is None else options
+        return solver, source_sets, distance[:, None] if one else distance, one, options, surface
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
         ((n,) after :meth:`~warp_regdist.DistanceSolver.solve`, (n, k) after ``solve_many``;
         entries on sources and unreachable vertices are ignored) with respect to the vertex
         positions and alpha_hat, by implicit differentiation of the barrier-smoothed problem at
-        the solution (docs/method.md section 10, the solver's ``options.gradient_smoothing``).
+        the solution (docs/method.md section 10, the options' ``gradient_smoothing`` and
+        ``gradient_factorization``).
 
         Returns a :class:`~warp_regdist.Gradients`: ``vertices`` (n, 3) dL/dx,
         ``alpha_hat`` dL/dalpha_hat, ``smoothed_distance`` (the minimizer whose derivative it is)
@@ -101,7 +102,7 @@ class DistanceResult(OptimizeResult):
         """
         from .gradients import vector_jacobian_product
 
-        solver, source_sets, distance, one, mu_hat, surface = self._smoothable("differentiate")
+        solver, source_sets, distance, one, options, surface = self._smoothable("differentiate")
         n = np.asarray(self.distance).shape[0]
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
@@ -117,7 +118,7 @@ class DistanceResult(OptimizeResult):
         grad = grad[:, None] if one else grad
         if surface is not None:      # the new vertices of the refined mesh are no outputs: zero
             grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
-        out = vector_jacobian_product(solver, distance, source_sets, grad, mu_hat)
+        out = vector_jacobian_product(solver, distance, source_sets, grad, options)
         if surface is not None:
             from ..geometry.surface_points import refinement_vjp
 
@@ -144,11 +145,11 @@ class DistanceResult(OptimizeResult):
         from .gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        solver, source_sets, distance, one, mu_hat, surface = self._smoothable("polish")
+        solver, source_sets, distance, one, options, surface = self._smoothable("polish")
         out = DistanceResult(self)
         out._attach(*vars(self)["_problem"])
         del out["error_estimate"]
-        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j, mu_hat)
+        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j, options)
                      for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])

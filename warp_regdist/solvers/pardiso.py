@@ -1,0 +1,100 @@
+"""Sparse Cholesky by MKL PARDISO through ctypes (the ``[pardiso]`` extra: Intel's ``mkl`` wheel).
+
+PARDISO (Schenk and Gaertner) factorizes a symmetric positive definite A = L D L^T with a nested
+dissection ordering (METIS) and supernodes on MKL's threads; :class:`PardisoCholesky` holds one
+factorization (phases 12, then 33 per solve, -1 on release) of the upper triangle of A in CSR
+with 1-based indices, PARDISO's default parameters (iparm[0] = 0).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import glob
+import os
+import site
+import sys
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["PardisoCholesky", "PardisoError", "load_mkl"]
+
+_SPD = 2
+
+
+class PardisoError(RuntimeError):
+    """PARDISO returned a nonzero error code (-4: a zero or negative pivot, A not positive definite)."""
+
+
+@functools.cache
+def load_mkl():
+    """MKL's runtime library (ctypes.CDLL), searched where the ``mkl`` wheel puts it (``lib`` under
+    sys.prefix or the user base) and on the loader's path; OSError where there is none."""
+    names = sorted(glob.glob(os.path.join(sys.prefix, "lib", "libmkl_rt.so*"))
+                   + glob.glob(os.path.join(site.USER_BASE, "lib", "libmkl_rt.so*"))
+                   + glob.glob(os.path.join(sys.prefix, "Library", "bin", "mkl_rt*.dll")), key=len)
+    names += ["libmkl_rt.so.2", "libmkl_rt.so"]
+    for name in names:
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        p, i = ctypes.POINTER(ctypes.c_int64), ctypes.POINTER(ctypes.c_int32)
+        lib.pardiso.argtypes = [p, i, i, i, i, i, ctypes.c_void_p, i, i, i, i, i, i, ctypes.c_void_p,
+                                ctypes.c_void_p, i]
+        lib.pardiso.restype = None
+        return lib
+    raise OSError(f"expected MKL's libmkl_rt (pip install mkl), got none in {sys.prefix}/lib or on the loader's path")
+
+
+class PardisoCholesky:
+    """A = L D L^T of a symmetric positive definite ``A`` (n, n) scipy sparse (both triangles or the
+    upper one). ``solve(b)`` for b (n,) float64; ``release()`` frees PARDISO's memory (also on
+    garbage collection). PardisoError where PARDISO fails (A not numerically positive definite)."""
+
+    def __init__(self, A):
+        self._lib = load_mkl()
+        upper = sp.triu(A, format="csr")
+        upper.sort_indices()
+        self.n = upper.shape[0]
+        self._a = np.ascontiguousarray(upper.data, dtype=np.float64)
+        self._ia = (upper.indptr + 1).astype(np.int32)
+        self._ja = (upper.indices + 1).astype(np.int32)
+        self._pt = np.zeros(64, dtype=np.int64)
+        self._iparm = np.zeros(64, dtype=np.int32)
+        self._held = True
+        try:
+            self._call(12, np.zeros(self.n))
+        except PardisoError:
+            self.release()
+            raise
+
+    def _call(self, phase, b):
+        x = np.zeros_like(b)
+        error = ctypes.c_int32(0)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        one = ctypes.byref(ctypes.c_int32(1))
+        self._lib.pardiso(self._pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), one, one,
+                          ctypes.byref(ctypes.c_int32(_SPD)), ctypes.byref(ctypes.c_int32(phase)),
+                          ctypes.byref(ctypes.c_int32(self.n)), self._a.ctypes.data, self._ia.ctypes.data_as(i32),
+                          self._ja.ctypes.data_as(i32), None, one, self._iparm.ctypes.data_as(i32),
+                          ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data, ctypes.byref(error))
+        if error.value != 0:
+            raise PardisoError(f"expected PARDISO phase {phase} to succeed, got error {error.value}")
+        return x
+
+    def solve(self, b):
+        """x (n,) with A x = b."""
+        if not self._held:
+            raise RuntimeError("expected a PardisoCholesky not yet released, got a released one")
+        return self._call(33, np.ascontiguousarray(b, dtype=np.float64))
+
+    def release(self):
+        if self._held:
+            self._held = False
+            self._call(-1, np.zeros(self.n))
+
+    def __del__(self):
+        if getattr(self, "_held", False):
+            self.release()
