@@ -14,6 +14,7 @@ import glob
 import os
 import site
 import sys
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -63,38 +64,38 @@ class PardisoCholesky:
         self._ja = (upper.indices + 1).astype(np.int32)
         self._pt = np.zeros(64, dtype=np.int64)
         self._iparm = np.zeros(64, dtype=np.int32)
-        self._held = True
         try:
             self._call(12, np.zeros(self.n))
         except PardisoError:
-            self.release()
+            self._call(-1, np.zeros(self.n))
             raise
+        self._release = weakref.finalize(self, _call, self._lib, self._pt, self._iparm, -1, self.n, self._a,
+                                         self._ia, self._ja, np.zeros(self.n))
 
     def _call(self, phase, b):
-        x = np.zeros_like(b)
-        error = ctypes.c_int32(0)
-        i32 = ctypes.POINTER(ctypes.c_int32)
-        one = ctypes.byref(ctypes.c_int32(1))
-        self._lib.pardiso(self._pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), one, one,
-                          ctypes.byref(ctypes.c_int32(_SPD)), ctypes.byref(ctypes.c_int32(phase)),
-                          ctypes.byref(ctypes.c_int32(self.n)), self._a.ctypes.data, self._ia.ctypes.data_as(i32),
-                          self._ja.ctypes.data_as(i32), None, one, self._iparm.ctypes.data_as(i32),
-                          ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data, ctypes.byref(error))
-        if error.value != 0:
-            raise PardisoError(f"expected PARDISO phase {phase} to succeed, got error {error.value}")
-        return x
+        return _call(self._lib, self._pt, self._iparm, phase, self.n, self._a, self._ia, self._ja, b)
 
     def solve(self, b):
         """x (n,) with A x = b."""
-        if not self._held:
+        if not self._release.alive:
             raise RuntimeError("expected a PardisoCholesky not yet released, got a released one")
         return self._call(33, np.ascontiguousarray(b, dtype=np.float64))
 
     def release(self):
-        if self._held:
-            self._held = False
-            self._call(-1, np.zeros(self.n))
+        """Free PARDISO's memory now (it is also freed when the object is collected, or at exit)."""
+        self._release()
 
-    def __del__(self):
-        if getattr(self, "_held", False):
-            self.release()
+
+def _call(lib, pt, iparm, phase, n, a, ia, ja, b):
+    """One call of PARDISO on the handle ``pt``: x (n,) of phase 33, zeros of the others."""
+    x = np.zeros_like(b)
+    error = ctypes.c_int32(0)
+    i32 = ctypes.POINTER(ctypes.c_int32)
+    one = ctypes.byref(ctypes.c_int32(1))
+    lib.pardiso(pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), one, one, ctypes.byref(ctypes.c_int32(_SPD)),
+                ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(n)), a.ctypes.data,
+                ia.ctypes.data_as(i32), ja.ctypes.data_as(i32), None, one, iparm.ctypes.data_as(i32),
+                ctypes.byref(ctypes.c_int32(0)), b.ctypes.data, x.ctypes.data, ctypes.byref(error))
+    if error.value != 0:
+        raise PardisoError(f"expected PARDISO phase {phase} to succeed, got error {error.value}")
+    return x
