@@ -5,9 +5,9 @@
 
 Per mesh (one source, alpha_hat 0.05, float64, one process), in one process: the forward solve
 (``solve``, after a warm-up solve that compiles the kernels) and the vjp of a random loss gradient
-with each factorization of its Newton systems (``gradient_factorization`` "superlu", and "pardiso"
-where MKL is installed), median of 3 (1 on the 100k sphere and the 17k cube). Columns: seconds of
-each, the backward's ratio to the forward, the Newton steps of the smoothed problem, smoothing_change
+and ``polish()`` with each factorization of their Newton systems (``gradient_factorization``
+"superlu", and "pardiso" where MKL is installed), median of 3 (1 on the 100k sphere and the 17k
+cube). Columns: seconds of each, the backward's and the polish's ratio to the forward, the Newton steps of the smoothed problem, smoothing_change
 (max |u_mu - u| / max u), and the largest difference between the two factorizations' position
 gradients relative to the largest entry. Prints a markdown table and writes
 benchmarks/results/gradients.csv.
@@ -52,19 +52,21 @@ def run(name, mesh, source, repeats, factorizations):
     solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
     solver.solve([source])
     b = np.random.default_rng(0).random(mesh.n_vertices)
-    forward, backward, grads = [], {f: [] for f in factorizations}, {}
+    forward, backward, polish, grads = [], {f: [] for f in factorizations}, {f: [] for f in factorizations}, {}
     for _ in range(repeats):
         for f in factorizations:
             res = solver.solve([source], gradient_factorization=f)
             forward.append(res.seconds)
             grads[f] = res.vjp(b)
             backward[f].append(grads[f].seconds)
+            polish[f].append(res.polish().seconds - res.seconds)
     fwd = statistics.median(forward)
     g = grads[factorizations[0]]
     row = dict(mesh=name, vertices=mesh.n_vertices, admm_iterations=res.iterations, forward_s=fwd)
     for f in factorizations:
         row[f"backward_{f}_s"] = statistics.median(backward[f])
         row[f"ratio_{f}"] = row[f"backward_{f}_s"] / fwd
+        row[f"polish_ratio_{f}"] = statistics.median(polish[f]) / fwd
     row.update(newton_steps=g.newton_iterations, smoothing_change_pct=100.0 * g.smoothing_change)
     if len(factorizations) > 1:
         a, c = (grads[f].vertices for f in factorizations)

@@ -101,33 +101,84 @@ def factorization_backend(name):
 
 
 class _Factor:
-    """Solves of the SPD matrix H (CSC) through D H D, D = diag(H)^(-1/2), each with one step of
+    """Solves of the SPD matrix H (CSR, sorted indices, a symmetric pattern with its diagonal) through D H D, D = diag(H)^(-1/2), each with one step of
     iterative refinement (H's condition reaches 1e12 and more). ``backend`` "pardiso": MKL PARDISO's
-    Cholesky of the upper triangle (nested dissection ordering, threaded; SuperLU where it finds a
-    non-positive pivot); "superlu": scipy's SuperLU with a symmetric ordering and no pivoting."""
+    Cholesky, refactoring the ``previous`` _Factor's handle (its ordering and symbolic analysis kept
+    along a Newton path, whose Hessians share a pattern; ``previous`` can no longer solve), SuperLU
+    where a pivot is not positive; "superlu": scipy's SuperLU, symmetric ordering, no pivoting."""
 
-    def __init__(self, H, backend):
-        self.H, self.d = H, 1.0 / np.sqrt(H.diagonal())
-        D = sp.diags(self.d)
-        scaled = (D @ H @ D).tocsc()
+    def __init__(self, H, backend, previous=None):
+        self.H = H
+        rows = np.repeat(np.arange(H.shape[0]), np.diff(H.indptr))
+        self.d = 1.0 / np.sqrt(H.data[rows == H.indices])
+        data = H.data * self.d[rows] * self.d[H.indices]
         self.pardiso = None
         if backend == "pardiso":
+            upper = H.indices >= rows
+            scaled = sp.csr_matrix((data[upper], H.indices[upper],
+                                    np.concatenate([[0], np.cumsum(np.bincount(rows[upper], minlength=H.shape[0]))])),
+                                   shape=H.shape)
+            cholesky = None if previous is None else previous.pardiso
             try:
-                self.pardiso = PardisoCholesky(scaled)
+                if cholesky is None:
+                    cholesky = PardisoCholesky(scaled)
+                else:
+                    cholesky.refactor(scaled)
+                self.pardiso, self.generation = cholesky, cholesky.generation
                 return
             except PardisoError:
                 pass
-        self.lu = spla.splu(scaled, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                            options=dict(SymmetricMode=True))
+        self.lu = spla.splu(sp.csc_matrix((data, H.indices, H.indptr), shape=H.shape),   # = D H D (symmetric)
+                            permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 
     def _scaled_solve(self, b):
         if self.pardiso is None:
             return self.lu.solve(b)
+        if self.pardiso.generation != self.generation:
+            raise RuntimeError("expected the latest factorization of a PARDISO handle, got one refactored since")
         return self.pardiso.solve(b)
 
     def solve(self, b):
         x = self.d * self._scaled_solve(self.d * b)
         return x + self.d * self._scaled_solve(self.d * (b - self.H @ x))
+
+
+class _HessianPattern:
+    """H = G^T blockdiag(B_e) G on its fixed pattern for B_e = c_e I + w_e g_e g_e^T: with b_ea the
+    gradient of element e's a-th free hat function (G's rows 3e..3e+2),
+
+        H_ij = sum over e, a, b with i_a = i, i_b = j of c_e (b_ea . b_eb) + w_e (b_ea . g_e)(b_eb . g_e),
+
+    summed by one bincount into the CSR entries (sorted; the pattern does not depend on c, w, g)."""
+
+    def __init__(self, G, m):
+        f = G.shape[1]
+        coo = G.tocoo()
+        pairs, first = np.unique((coo.row // 3) * f + coo.col, return_inverse=True)   # (element, vertex)
+        element, vertex = pairs // f, pairs % f
+        b = np.zeros((pairs.size, 3))
+        np.add.at(b, (first, coo.row % 3), coo.data)
+        counts = np.bincount(element, minlength=m)
+        slot = np.arange(pairs.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[element]
+        k = int(counts.max(initial=0))
+        local = np.full((m, k), -1)
+        local[element, slot] = vertex
+        self.basis = np.zeros((m, k, 3))
+        self.basis[element, slot] = b
+        self.dots = np.einsum("eac,ebc->eab", self.basis, self.basis)
+        self.valid = (local[:, :, None] >= 0) & (local[:, None, :] >= 0)
+        rows, cols = np.broadcast_to(local[:, :, None], self.valid.shape), np.broadcast_to(local[:, None, :], self.valid.shape)
+        entries, self.scatter = np.unique(rows[self.valid] * f + cols[self.valid], return_inverse=True)
+        self.indices = entries % f
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(entries // f, minlength=f))])
+        self.shape = (f, f)
+
+    def matrix(self, c, w, g):
+        """H (f, f) CSR for c, w (m,) and g (m, 3)."""
+        s = np.einsum("eac,ec->ea", self.basis, g)
+        values = c[:, None, None] * self.dots + w[:, None, None] * s[:, :, None] * s[:, None, :]
+        data = np.bincount(self.scatter, weights=values[self.valid], minlength=self.indices.size)
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
 
 
 class SmoothedProblem:
@@ -141,10 +192,12 @@ class SmoothedProblem:
         self.mu = float(mu_hat) * ops.total_volume * ops.length_scale / m
         self.G = ops.grad[:, free].tocsr()
         self.m = m
+        self.hessian = _HessianPattern(self.G, m)
         self.load = ops.vertex_volumes[free]
         self.mu_hat = float(mu_hat)
         self.scale = ops.total_volume * ops.length_scale    # the units of F
         self.factorization = factorization
+        self._last = None    # the last _Factor, whose PARDISO handle the next one refactors
 
     def _g(self, v):
         g = (self.G @ v).reshape(self.m, 3)
@@ -156,15 +209,13 @@ class SmoothedProblem:
         return -self.load @ v + 0.5 * self.alpha * (a @ t) - mu * np.sum(np.log1p(-t))
 
     def gradient_hessian(self, v, mu):
-        """grad F (f,) and H (f, f) CSC on the free vertices at v (max |g| < 1)."""
+        """grad F (f,) and H (f, f) CSR on the free vertices at v (max |g| < 1): per element
+        c_e = alpha a_e + 2 mu / (1 - |g_e|^2) and H = G^T blockdiag(c_e I + 4 mu g_e g_e^T / (1 - |g_e|^2)^2) G."""
         g, t = self._g(v)
         a, inv = self.ops.element_volumes, 1.0 / (1.0 - t)
         c = a * self.alpha + 2.0 * mu * inv
         grad = -self.load + self.G.T @ (c[:, None] * g).ravel()
-        blocks = c[:, None, None] * np.eye(3) + (4.0 * mu * inv ** 2)[:, None, None] * g[:, :, None] * g[:, None, :]
-        B = sp.csr_matrix((blocks.ravel(), np.repeat(np.arange(3 * self.m).reshape(-1, 3), 3, axis=0).ravel(),
-                           np.arange(0, 9 * self.m + 1, 3)), shape=(3 * self.m, 3 * self.m))
-        return grad, (self.G.T @ B @ self.G).tocsc()
+        return grad, self.hessian.matrix(c, 4.0 * mu * inv ** 2, g)
 
     def max_gradient_squared(self, v):
         return float(np.max(self._g(v)[1], initial=0.0))
@@ -186,7 +237,7 @@ class SmoothedProblem:
         last = np.inf
         for count in range(1, _MAX_NEWTON + 1):
             grad, H = self.gradient_hessian(v, mu)
-            lu = _Factor(H, self.factorization)
+            lu = self._last = _Factor(H, self.factorization, self._last)
             step = -lu.solve(grad)
             decrement = -grad @ step
             if decrement <= 2.0 * tight or (decrement <= 1e-14 * self.scale and decrement > 0.5 * last):

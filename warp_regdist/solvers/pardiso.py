@@ -2,8 +2,9 @@
 
 PARDISO (Schenk and Gaertner) factorizes a symmetric positive definite A = L D L^T with a nested
 dissection ordering (METIS) and supernodes on MKL's threads; :class:`PardisoCholesky` holds one
-factorization (phases 12, then 33 per solve, -1 on release) of the upper triangle of A in CSR
-with 1-based indices, PARDISO's default parameters (iparm[0] = 0).
+factorization (phase 12, or 22 alone for new values on the analysed pattern; 33 per solve, -1 on
+release) of the upper triangle of A in CSR with 1-based indices, PARDISO's default parameters
+(iparm[0] = 0).
 """
 
 from __future__ import annotations
@@ -51,29 +52,50 @@ def load_mkl():
 
 class PardisoCholesky:
     """A = L D L^T of a symmetric positive definite ``A`` (n, n) scipy sparse (both triangles or the
-    upper one). ``solve(b)`` for b (n,) float64; ``release()`` frees PARDISO's memory (also on
-    garbage collection). PardisoError where PARDISO fails (A not numerically positive definite)."""
+    upper one). ``solve(b)`` for b (n,) float64; ``refactor(A2)`` factors another matrix in its
+    place, reusing the ordering and symbolic analysis where A2 has A's pattern (``generation``
+    counts the factorizations); ``release()`` frees PARDISO's memory (also on garbage collection
+    and at exit). PardisoError where PARDISO fails (A not numerically positive definite)."""
 
     def __init__(self, A):
         self._lib = load_mkl()
-        upper = sp.triu(A, format="csr")
-        upper.sort_indices()
+        self.generation = 0
+        self._analyse(_upper(A))
+
+    def _analyse(self, upper):
+        """A new handle: ordering, symbolic and numerical factorization (phase 12) of ``upper``."""
         self.n = upper.shape[0]
         self._a = np.ascontiguousarray(upper.data, dtype=np.float64)
         self._ia = (upper.indptr + 1).astype(np.int32)
         self._ja = (upper.indices + 1).astype(np.int32)
         self._pt = np.zeros(64, dtype=np.int64)
         self._iparm = np.zeros(64, dtype=np.int32)
-        try:
-            self._call(12, np.zeros(self.n))
-        except PardisoError:
-            self._call(-1, np.zeros(self.n))
-            raise
         self._release = weakref.finalize(self, _call, self._lib, self._pt, self._iparm, -1, self.n, self._a,
                                          self._ia, self._ja, np.zeros(self.n))
+        self._factor(12)
+
+    def _factor(self, phase):
+        try:
+            self._call(phase, np.zeros(self.n))
+        except PardisoError:
+            self.release()
+            raise
 
     def _call(self, phase, b):
         return _call(self._lib, self._pt, self._iparm, phase, self.n, self._a, self._ia, self._ja, b)
+
+    def refactor(self, A):
+        """Factor ``A`` instead: the numerical phase alone (22) where its upper triangle has the
+        analysed pattern, else a new analysis; earlier factorizations are gone."""
+        upper = _upper(A)
+        self.generation += 1
+        if (self._release.alive and upper.shape[0] == self.n and upper.nnz == self._a.size
+                and np.array_equal(upper.indptr + 1, self._ia) and np.array_equal(upper.indices + 1, self._ja)):
+            self._a[:] = upper.data
+            self._factor(22)
+        else:
+            self.release()
+            self._analyse(upper)
 
     def solve(self, b):
         """x (n,) with A x = b."""
@@ -84,6 +106,12 @@ class PardisoCholesky:
     def release(self):
         """Free PARDISO's memory now (it is also freed when the object is collected, or at exit)."""
         self._release()
+
+
+def _upper(A):
+    upper = sp.triu(A, format="csr")
+    upper.sort_indices()
+    return upper
 
 
 def _call(lib, pt, iparm, phase, n, a, ia, ja, b):
