@@ -245,6 +245,42 @@ def test_factorizations_give_the_same_gradients(monkeypatch):
         solver.solve([0], gradient_factorization="pardiso").polish()
 
 
+@pytest.mark.parametrize("case", ["spot955", "cube"])
+def test_hessian_on_its_pattern_equals_the_sparse_products(case):
+    """The Newton Hessian assembled by one bincount equals G^T blockdiag(c_e I + w_e g_e g_e^T) G
+    formed by sparse products, with sources removed from G's columns."""
+    import scipy.sparse as sp
+
+    mesh = {"spot955": spot955, "cube": cube_mesh}[case]()
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    free = np.ones(mesh.n_vertices, dtype=bool)
+    free[[0, 7, 11]] = False
+    problem = SmoothedProblem(solver.operators, solver.alpha, 1e-6, free)
+    rng = np.random.default_rng(0)
+    c, w, g = rng.random(problem.m), rng.random(problem.m), rng.standard_normal((problem.m, 3))
+    H = problem.hessian.matrix(c, w, g)
+    blocks = c[:, None, None] * np.eye(3) + w[:, None, None] * g[:, :, None] * g[:, None, :]
+    expected = (problem.G.T @ sp.block_diag(list(blocks), format="csr") @ problem.G).toarray()
+    assert H.has_sorted_indices and H.shape == (free.sum(), free.sum())
+    assert np.abs(H.toarray() - expected).max() <= 1e-13 * np.abs(expected).max()
+
+
+def test_an_earlier_factor_of_a_refactored_handle_refuses_to_solve():
+    from warp_regdist.solvers.gradients import _Factor, factorization_backend
+
+    if factorization_backend("auto") != "pardiso":
+        pytest.skip("MKL not installed")
+    import scipy.sparse as sp
+
+    H = sp.diags([4.0 * np.ones(30), np.ones(29), np.ones(29)], [0, -1, 1], format="csr")
+    first = _Factor(H, "pardiso")
+    second = _Factor(2.0 * H, "pardiso", first)
+    assert np.abs(2.0 * H @ second.solve(np.ones(30)) - 1.0).max() <= 1e-12
+    with pytest.raises(RuntimeError, match="expected the latest factorization of a PARDISO handle, got one "
+                                           "refactored since"):
+        first.solve(np.ones(30))
+
+
 def test_pardiso_falls_back_to_superlu_where_a_pivot_is_not_positive():
     """A symmetric indefinite matrix with a positive diagonal (blocks [[1, 2], [2, 1]]): PARDISO's
     Cholesky refuses it (error -4), SuperLU solves it."""
@@ -253,7 +289,7 @@ def test_pardiso_falls_back_to_superlu_where_a_pivot_is_not_positive():
 
     if factorization_backend("auto") != "pardiso":
         pytest.skip("MKL not installed")
-    A = sp.block_diag([np.array([[1.0, 2.0], [2.0, 1.0]])] * 25, format="csc")
+    A = sp.block_diag([np.array([[1.0, 2.0], [2.0, 1.0]])] * 25, format="csr")
     b = np.arange(50.0)
     factor = _Factor(A, "pardiso")
     assert factor.pardiso is None

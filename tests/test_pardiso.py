@@ -43,3 +43,20 @@ def test_released_factor_refuses_to_solve():
     c.release()
     with pytest.raises(RuntimeError, match="expected a PardisoCholesky not yet released, got a released one"):
         c.solve(np.ones(300))
+
+
+def test_refactor_reuses_the_pattern_and_follows_a_new_one():
+    """A second matrix on the same pattern (numerical phase only), then one on another pattern (a
+    new analysis): each solve matches the dense one, and ``generation`` counts the factorizations."""
+    A = spd()
+    b = np.random.default_rng(2).standard_normal(300)
+    c = PardisoCholesky(A)
+    for B in (A + sp.diags(np.linspace(1.0, 2.0, 300)), spd(seed=5)):
+        c.refactor(B)
+        exact = np.linalg.solve(B.toarray(), b)
+        assert np.abs(c.solve(b) - exact).max() <= 1e-6 * np.abs(exact).max()
+    assert c.generation == 2
+    with pytest.raises(PardisoError, match="got error -4"):
+        c.refactor(A - 0.5 * sp.eye(300) * abs(A).max())
+    with pytest.raises(RuntimeError, match="got a released one"):
+        c.solve(b)

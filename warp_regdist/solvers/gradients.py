@@ -154,10 +154,11 @@ class _HessianPattern:
     def __init__(self, G, m):
         f = G.shape[1]
         coo = G.tocoo()
-        pairs, first = np.unique((coo.row // 3) * f + coo.col, return_inverse=True)   # (element, vertex)
+        row, col = coo.row.astype(np.int64), coo.col.astype(np.int64)
+        pairs, first = np.unique((row // 3) * f + col, return_inverse=True)   # (element, vertex), no int32 overflow
         element, vertex = pairs // f, pairs % f
         b = np.zeros((pairs.size, 3))
-        np.add.at(b, (first, coo.row % 3), coo.data)
+        np.add.at(b, (first, row % 3), coo.data)
         counts = np.bincount(element, minlength=m)
         slot = np.arange(pairs.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[element]
         k = int(counts.max(initial=0))
