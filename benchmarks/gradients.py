@@ -6,7 +6,7 @@
 Per mesh (one source, alpha_hat 0.05, float64, one process), in one process: the forward solve
 (``solve``, after a warm-up solve that compiles the kernels) and the vjp of a random loss gradient
 and ``polish()`` with each factorization of their Newton systems (``gradient_factorization``
-"superlu", and "pardiso" where MKL is installed), median of 3 (1 on the 100k sphere and the 17k
+"superlu", and "pardiso" where MKL is installed), median of 5 (1 on the 100k sphere and the 17k
 cube). Columns: seconds of each, the backward's and the polish's ratio to the forward, the Newton steps of the smoothed problem, smoothing_change
 (max |u_mu - u| / max u), and the largest difference between the two factorizations' position
 gradients relative to the largest entry. Prints a markdown table and writes
@@ -41,10 +41,10 @@ RESULTS = os.path.join(HERE, "results", "gradients.csv")
 
 
 def cases(small):
-    yield "spot_rr", wrd.load_mesh(wrd.data_path("spot_rr.off")), 2272, 3
+    yield "spot_rr", wrd.load_mesh(wrd.data_path("spot_rr.off")), 2272, 5
     if not small:
         yield "sphere_100k", meshes.cube_sphere(129), 0, 1
-        yield "tet_cube_15", wrd.Mesh(*cube_tets(15)), 0, 3
+        yield "tet_cube_15", wrd.Mesh(*cube_tets(15)), 0, 5
         yield "tet_cube_25", wrd.Mesh(*cube_tets(25)), 0, 1
 
 
