@@ -41,8 +41,9 @@ the exact cases of tests/data (the mesh's operators) and on ``LARGER`` (intrinsi
 the long runs in ``--cache``); then each engine's setup and time per iteration (``ENGINE_COST_ITERATIONS``
 iterations, float32 and float64) on cat_rr decimated to 1,000 vertices and on cat_rr itself, the sizes
 that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv. With
-``--decimate N`` only the runs on cat_rr decimated to about N vertices (alpha_hat 0.03), against its own
-5,000-iteration reference, into benchmarks/results/all_pairs_engines_N.csv.
+``--decimate N`` only the runs on cat_rr (or ``--mesh NAME``) decimated to about N vertices (alpha_hat 0.03),
+against its own 5,000-iteration reference, into benchmarks/results/all_pairs_engines_N.csv (or
+all_pairs_engines_NAME_N.csv).
 """
 
 import argparse
@@ -184,8 +185,9 @@ def main():
     parser.add_argument("--larger", action="store_true", help="accuracy= on LARGER against long symmetric runs")
     parser.add_argument("--engines", action="store_true", help="both engines on the exact cases and LARGER, and their costs")
     parser.add_argument("--decimate", type=int, default=None, metavar="N",
-                        help="with --engines: only cat_rr decimated to about N vertices (its own reference; "
-                        "all_pairs_engines_N.csv)")
+                        help="with --engines: only --mesh decimated to about N vertices (its own reference; "
+                        "all_pairs_engines_N.csv, all_pairs_engines_NAME_N.csv for another mesh than cat_rr)")
+    parser.add_argument("--mesh", default="cat_rr", help="with --decimate: the shared mesh to decimate")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
@@ -197,8 +199,9 @@ def main():
         sys.path.append(os.path.join(HERE, "..", "tests"))
         engines = ("eigenbasis", "consensus")
         if args.decimate:
-            output = ENGINES_RESULTS.replace(".csv", f"_{args.decimate}.csv")
-            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", (("cat_rr", args.decimate, 0.03),)),
+            tag = "" if args.mesh == "cat_rr" else f"_{args.mesh}"
+            output = ENGINES_RESULTS.replace(".csv", f"{tag}_{args.decimate}.csv")
+            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", ((args.mesh, args.decimate, 0.03),)),
                                  LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
         else:
             output = ENGINES_RESULTS
