@@ -170,7 +170,7 @@ def engine_cost_rows():
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--mesh", default="cat_rr")
+    parser.add_argument("--mesh", default="cat_rr", help="the shared mesh (with --decimate: the one decimated)")
     parser.add_argument("--alpha-hat", type=float, default=0.03)
     parser.add_argument("--dtypes", nargs="+", default=["float32", "float64"])
     parser.add_argument("--no-baseline", action="store_true")
@@ -187,7 +187,6 @@ def main():
     parser.add_argument("--decimate", type=int, default=None, metavar="N",
                         help="with --engines: only --mesh decimated to about N vertices (its own reference; "
                         "all_pairs_engines_N.csv, all_pairs_engines_NAME_N.csv for another mesh than cat_rr)")
-    parser.add_argument("--mesh", default="cat_rr", help="with --decimate: the shared mesh to decimate")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
