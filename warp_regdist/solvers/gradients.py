@@ -103,10 +103,10 @@ def factorization_backend(name):
 class _Factor:
     """Solves of the SPD matrix H (CSR, sorted indices, a symmetric pattern with its diagonal) through
     D H D, D = diag(H)^(-1/2), each with one step of iterative refinement (H's condition reaches 1e12
-    and more). ``backend`` "pardiso": MKL PARDISO's
-    Cholesky, refactoring the ``previous`` _Factor's handle (its ordering and symbolic analysis kept
-    along a Newton path, whose Hessians share a pattern; ``previous`` can no longer solve), SuperLU
-    where a pivot is not positive; "superlu": scipy's SuperLU, symmetric ordering, no pivoting."""
+    and more). ``backend`` "pardiso": MKL PARDISO's Cholesky, refactoring the ``previous`` _Factor's
+    handle (its ordering and symbolic analysis kept along a Newton path, whose Hessians share a
+    pattern; ``previous`` can no longer solve), SuperLU where a pivot is not positive; "superlu":
+    scipy's SuperLU, symmetric ordering, no pivoting."""
 
     def __init__(self, H, backend, previous=None):
         self.H = H
