@@ -243,8 +243,9 @@ def test_a_first_compile_is_announced(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
     announce_compile("float32", quiet=False)
-    assert capsys.readouterr().err == (f"warp-regdist: compiling the Warp kernels for float32, once (seconds to a "
-                                       f"minute; they are cached in {tmp_path})\n")
+    announcement = (f"warp-regdist: compiling the Warp kernels for float32, once (seconds to a minute; they are "
+                    f"cached in {tmp_path})\n")
+    assert capsys.readouterr().err == announcement
     (tmp_path / "wp_warp_regdist_pcg_float32_16_0123abc").mkdir()
     announce_compile("float32", quiet=False)
     announce_compile("float64", quiet=True)
