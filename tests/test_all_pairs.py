@@ -85,8 +85,8 @@ def test_worker_processes_give_the_same_matrix():
     mesh = wrd.Mesh(meshes.perturbed(V, F, 0.05, seed=2), F)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        one = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=1, device="cpu")
-        two = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=2, device="cpu")
+        one = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=1, device="cpu", engine="consensus")
+        two = wrd.all_pairs(mesh, 0.03, dtype="float32", max_iterations=25, workers=2, device="cpu", engine="consensus")
     assert np.array_equal(one.distance, two.distance) and one.distance.max() > 0
     # every residual is summed per column or per consensus tile row: the split changes no bit
     assert np.array_equal(one.history, two.history)

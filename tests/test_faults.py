@@ -335,7 +335,7 @@ def test_a_dead_worker_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda: kill_the_worker)
     code, out, err = _cli(capsys, "allpairs", path, "--output", tmp_path / "U.npy", "--workers", "2", "--device", "cpu",
-                          "--dtype", "float32")
+                          "--dtype", "float32", "--engine", "consensus")
     assert code == 2 and out == ""
     assert len(err.splitlines()) == 1 and err.startswith("warp-regdist: error: worker process 1 (pid ")
     assert "was killed by SIGKILL" in err

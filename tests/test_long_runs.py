@@ -43,7 +43,7 @@ def test_only_the_calling_thread_launches_kernels(sphere642, monkeypatch):
         return invoke(*args, **kwargs)
 
     monkeypatch.setattr(warp_context, "invoke", recording_invoke)
-    _quiet_all_pairs(sphere642, 0.03, dtype="float32", max_iterations=3, workers=2, device="cpu")
+    _quiet_all_pairs(sphere642, 0.03, dtype="float32", max_iterations=3, workers=2, device="cpu", engine="consensus")
     solver = wrd.DistanceSolver(sphere642, 0.05, dtype="float32", device="cpu", workers=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
@@ -58,7 +58,8 @@ sys.path.insert(0, {tests!r})
 import meshes, warp_regdist as wrd
 V, F = meshes.icosphere(3, 1.0)
 warnings.simplefilter("ignore")
-res = wrd.all_pairs(wrd.Mesh(V, F), 0.03, dtype="float32", max_iterations=4, workers=2, device="cpu")
+res = wrd.all_pairs(wrd.Mesh(V, F), 0.03, dtype="float32", max_iterations=4, workers=2, device="cpu",
+                    engine="consensus")
 print("OK", res.iterations)
 """
 
@@ -86,13 +87,15 @@ def test_all_pairs_with_workers_under_cpu_load():
 
 
 def test_resumed_run_equals_uninterrupted(sphere642, tmp_path):
-    whole = _quiet_all_pairs(sphere642, 0.03, max_iterations=30, workers=2, device="cpu")
+    whole = _quiet_all_pairs(sphere642, 0.03, max_iterations=30, workers=2, device="cpu", engine="consensus")
     path = tmp_path / "run.npz"
-    first = _quiet_all_pairs(sphere642, 0.03, max_iterations=12, workers=2, device="cpu", checkpoint=path)
+    first = _quiet_all_pairs(sphere642, 0.03, max_iterations=12, workers=2, device="cpu", checkpoint=path,
+                             engine="consensus")
     assert not first.converged and first.iterations == 12 and path.exists()
     assert not any(p.name.startswith("run.npz.tmp") for p in tmp_path.iterdir())
     # the rest with another worker count: the split does not change the iterates
-    rest = _quiet_all_pairs(sphere642, 0.03, max_iterations=30, workers=1, device="cpu", resume=path)
+    rest = _quiet_all_pairs(sphere642, 0.03, max_iterations=30, workers=1, device="cpu", resume=path,
+                            engine="consensus")
     assert rest.iterations == whole.iterations == 30
     assert np.array_equal(rest.distance, whole.distance)
     assert np.array_equal(rest.history, whole.history)
@@ -122,7 +125,8 @@ def test_checkpoints_and_change_tests_read_the_state_without_copying_it(sphere64
 
     monkeypatch.setattr(np, "savez", recording_savez)
     monkeypatch.setattr(stopping.ExtrapolatedChangeTest, "update", recording_update)
-    _quiet_all_pairs(sphere642, 0.03, max_iterations=101, workers=1, device="cpu", checkpoint=tmp_path / "run.npz")
+    _quiet_all_pairs(sphere642, 0.03, max_iterations=101, workers=1, device="cpu", checkpoint=tmp_path / "run.npz",
+                     engine="consensus")
     assert len(written) == 1 and set(written[0]) >= {"X", "U", "H", "v"} and all(written[0].values())
     assert compared == [True, True]
 
@@ -193,7 +197,7 @@ def test_a_checkpoint_is_checked_from_its_headers_and_read_one_array_at_a_time(s
     import tracemalloc
 
     path = tmp_path / "run.npz"
-    _quiet_all_pairs(sphere642, 0.03, max_iterations=3, device="cpu", checkpoint=path)
+    _quiet_all_pairs(sphere642, 0.03, max_iterations=3, device="cpu", checkpoint=path, engine="consensus")
     fingerprint = all_pairs_checkpoint.problem_fingerprint(sphere642, 0.03, "float64", wrd.AllPairsOptions().rho2_factor,
                                                            "intrinsic", "consensus")
     tracemalloc.start()

@@ -42,7 +42,7 @@ def ready():
 if {kind!r} == "all_pairs":  # the worker waits for the next call while the parent sleeps in progress
     V, F = meshes.icosphere(3, 1.0)
     wrd.all_pairs(wrd.Mesh(V, F), 0.03, dtype="float32", max_iterations=10000, workers=2, device="cpu",
-                  callback=lambda p: p.iteration == 2 and ready())
+                  engine="consensus", callback=lambda p: p.iteration == 2 and ready())
 else:  # the worker solves its part (run to max_iterations) while the parent sleeps in its own
     V, F = meshes.icosphere(4, 1.0)
     run_iterations = solver_module.run_iterations

@@ -70,7 +70,7 @@ from .stopping import gradient_excess, steep_columns, steepest_element
 
 __all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTICES"]
 
-EIGENBASIS_MAX_VERTICES = 500
+EIGENBASIS_MAX_VERTICES = 1000
 """The largest mesh on which ``engine="auto"`` takes the eigenbasis engine (on the CPU): its dense U-step
 costs O(n^3) an iteration against the consensus engine's O(n^2), and its setup an (n, n) eigendecomposition."""
 
