@@ -10,6 +10,7 @@
     python benchmarks/all_pairs.py --larger --cache /tmp/stopping --triangulations mesh intrinsic
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping    # eigenbasis against consensus engine
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 1000
+    python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 600 --mesh bunny.obj --alpha-hat 0.1
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -41,9 +42,10 @@ the exact cases of tests/data (the mesh's operators) and on ``LARGER`` (intrinsi
 the long runs in ``--cache``); then each engine's setup and time per iteration (``ENGINE_COST_ITERATIONS``
 iterations, float32 and float64) on cat_rr decimated to 1,000 vertices and on cat_rr itself, the sizes
 that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv. With
-``--decimate N`` only the runs on cat_rr (or ``--mesh NAME``) decimated to about N vertices (alpha_hat 0.03),
-against its own 5,000-iteration reference, into benchmarks/results/all_pairs_engines_N.csv (or
-all_pairs_engines_NAME_N.csv).
+``--decimate N`` only the runs on cat_rr (or ``--mesh NAME``, a shared mesh or a mesh file) decimated to about
+N vertices (at ``--alpha-hat``), against its own 5,000-iteration reference, into
+benchmarks/results/all_pairs_engines_N.csv (all_pairs_engines_NAME_N.csv for another mesh,
+all_pairs_engines_NAME_ALPHA_N.csv at another alpha_hat than 0.03).
 """
 
 import argparse
@@ -114,8 +116,9 @@ def larger_cases(cache, triangulation="mesh", cases=LARGER):
     import stopping
     from symmetric_all_pairs import SymmetricADMM
 
-    for name, vertices, alpha_hat in cases:
-        mesh = stopping.decimated(name, vertices)
+    for path, vertices, alpha_hat in cases:
+        mesh = stopping.decimated(path, vertices)
+        name = os.path.splitext(os.path.basename(path))[0]
         key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
         key += "" if triangulation == "mesh" else f" {triangulation}"
         reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat, triangulation).reference(
@@ -170,7 +173,8 @@ def engine_cost_rows():
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--mesh", default="cat_rr", help="the shared mesh (with --decimate: the one decimated)")
+    parser.add_argument("--mesh", default="cat_rr",
+                        help="a shared mesh's name or a mesh file (with --decimate: the one decimated)")
     parser.add_argument("--alpha-hat", type=float, default=0.03)
     parser.add_argument("--dtypes", nargs="+", default=["float32", "float64"])
     parser.add_argument("--no-baseline", action="store_true")
@@ -186,7 +190,7 @@ def main():
     parser.add_argument("--engines", action="store_true", help="both engines on the exact cases and LARGER, and their costs")
     parser.add_argument("--decimate", type=int, default=None, metavar="N",
                         help="with --engines: only --mesh decimated to about N vertices (its own reference; "
-                        "all_pairs_engines_N.csv, all_pairs_engines_NAME_N.csv for another mesh than cat_rr)")
+                        "at --alpha-hat; all_pairs_engines[_NAME][_ALPHA]_N.csv)")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
@@ -198,9 +202,10 @@ def main():
         sys.path.append(os.path.join(HERE, "..", "tests"))
         engines = ("eigenbasis", "consensus")
         if args.decimate:
-            tag = "" if args.mesh == "cat_rr" else f"_{args.mesh}"
+            name = os.path.splitext(os.path.basename(args.mesh))[0]
+            tag = ("" if name == "cat_rr" else f"_{name}") + ("" if args.alpha_hat == 0.03 else f"_{args.alpha_hat:g}")
             output = ENGINES_RESULTS.replace(".csv", f"{tag}_{args.decimate}.csv")
-            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", ((args.mesh, args.decimate, 0.03),)),
+            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", ((args.mesh, args.decimate, args.alpha_hat),)),
                                  LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
         else:
             output = ENGINES_RESULTS

@@ -10,8 +10,8 @@ SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
 
 
 def shared_mesh(name):
-    """A mesh of ../shared/meshes, or None when shared/ is not beside the checkout."""
-    path = os.path.join(SHARED, "meshes", f"{name}.off")
+    """A mesh of ../shared/meshes by name, or a mesh file's path; None when there is no such file."""
+    path = name if os.path.isfile(name) else os.path.join(SHARED, "meshes", f"{name}.off")
     return wrd.load_mesh(path) if os.path.isfile(path) else None
 
 

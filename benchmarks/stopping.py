@@ -48,7 +48,7 @@ PREVIOUS = dict(single=dict(eps_rel=2.5e-4, eps_rel_dual=0.15, rho0=0.5, rho_max
 
 
 def decimated(name, vertices):
-    """shared mesh ``name`` decimated to about ``vertices`` vertices by fast-simplification."""
+    """shared mesh ``name`` (or a mesh file) decimated to about ``vertices`` vertices by fast-simplification."""
     import fast_simplification
 
     mesh = meshes.shared_mesh(name)
