@@ -20,8 +20,8 @@ symmetrized) at alpha_hat and at 2 alpha_hat (the single-source weight whose row
 closest to the all-pairs rows), with its distance to the all-pairs matrix. With
 ``--reference-scale S`` a float64 run at accuracy 0.005 S (every tolerance of the default
 accuracy scaled by S: a tighter solve of the same problem, at most 5,000 iterations) is the
-reference, and each run's max deviation from it is reported in % of the maximal distance. The kernel cache is warmed on a small mesh first,
-so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
+reference, and each run's max deviation from it is reported in % of the maximal distance. The
+kernel cache is warmed on a small mesh first, so no time includes compilation. Writes benchmarks/results/all_pairs.csv.
 
 With ``--accuracy``: ``AllPairsSolver.solve(accuracy=e)`` for e in 0.02, 0.01, 0.005, 0.002 on the
 irregular meshes whose exact minimizers are known (the two in tests/data, and those of
