@@ -98,22 +98,29 @@ def test_change_test_reset_and_state_round_trip():
 
 
 def test_extrapolated_change_test_numbers():
-    test = ExtrapolatedChangeTest(window=50, eps=0.5, columns=1)
+    test = ExtrapolatedChangeTest(window=50, eps=1.5, columns=1)
     assert not test.settled[0] and test.change[0] == math.inf
     u = np.array([[8.0], [0.0]])
-    assert test.update(u).tolist() == [False] and test.change[0] == math.inf  # the first only records u
-    test.update(u + [[0.0], [4.0]])  # c = 4 / 8, nothing to extrapolate from yet
+    assert test.update(u, 50).tolist() == [False] and test.change[0] == math.inf  # the first only records u
+    test.update(u + [[0.0], [4.0]], 100)  # c = 4 / 8, nothing to extrapolate from yet
     assert test.window_change[0] == 0.5 and test.change[0] == math.inf and not test.settled[0]
     saved = copy.deepcopy(test.state())
-    assert test.update(u + [[0.0], [6.0]]).tolist() == [True]  # c = 2 / 8: 0.25 / (1 - 0.25 / 0.5) = 0.5 <= eps
-    assert test.window_change[0] == 0.25 and test.change[0] == 0.5
-    test.update(u + [[0.0], [2.0]])  # c = 4 / 8 grows: inf
-    assert test.change[0] == math.inf and not test.settled[0]
-    test.update(u + [[0.0], [2.0]])  # U stopped moving
+    # c = 2 / 8: geometric 0.25 / (1 - 0.25 / 0.5) = 0.5, at 1 / k the larger window's 0.5 x 150 / 50 = 1.5
+    assert test.update(u + [[0.0], [6.0]], 150).tolist() == [True]
+    assert test.window_change[0] == 0.25 and test.change[0] == 1.5
+    test.update(u + [[0.0], [2.0]], 200)  # c = 4 / 8 grows: at the capped rate 0.95, 0.5 / 0.05
+    assert test.change[0] == pytest.approx(10.0) and not test.settled[0]
+    test.update(u + [[0.0], [5.6]], 250)  # c = 0.45: geometric 0.45 / 0.1 = 4.5 beyond 0.5 x 250 / 50 = 2.5
+    assert test.change[0] == pytest.approx(4.5) and not test.settled[0]
+    test.update(u + [[0.0], [5.6]], 300)  # U stopped moving
     assert test.change[0] == 0.0 and test.settled[0]
-    resumed = ExtrapolatedChangeTest(50, 0.5, 1)
+    test.update(u + [[0.0], [5.68]], 5000)  # moves again (c = 0.01): 0.01 / 0.05, the 1 / k term 0 x min(100, 20)
+    assert test.change[0] == pytest.approx(0.2) and test.settled[0]
+    test.update(u + [[0.0], [5.679]], 5050)  # c = 1.25e-4: 1/k with 0.01 x 20 windows (the cap), not x 101
+    assert test.change[0] == pytest.approx(0.2) and test.settled[0]
+    resumed = ExtrapolatedChangeTest(50, 1.5, 1)
     resumed.restore(saved)
-    assert resumed.update(u + [[0.0], [6.0]]).tolist() == [True] and resumed.change[0] == 0.5
+    assert resumed.update(u + [[0.0], [6.0]], 150).tolist() == [True] and resumed.change[0] == 1.5
     assert ExtrapolatedChangeTest(50, math.inf, 1).settled[0]  # no change test: settled from the start
 
 
@@ -194,18 +201,18 @@ def bumpy42():
 def test_all_pairs_swapped_schedule_and_rho0(bumpy42):
     mesh, exact = bumpy42
     fast = PenaltySchedule(0.5, 4.0, 10.0, wrd.build_operators(mesh).length_scale)
-    default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, engine="consensus")
-    swapped = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, schedule=fast,
+    default = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, accuracy=0.001, engine="consensus")
+    swapped = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, accuracy=0.001, schedule=fast,
                             engine="consensus")
     assert default.converged and swapped.converged and swapped.iterations != default.iterations
     assert _error(default.distance, exact) <= 1e-3 and _error(swapped.distance, exact) <= 1e-3
     assert np.abs(swapped.distance - default.distance).max() <= 1e-3 * default.distance.max()
-    started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, eps_change=3e-4, rho0=1.0,
+    started = wrd.all_pairs(mesh, 0.1, device="cpu", workers=1, accuracy=0.001, rho0=1.0,
                              engine="consensus")   # per call
     assert started.iterations != default.iterations
     # in the solver's options rho0 also moves the multigrid's target penalty: other iterates, the same minimizer
     again = wrd.AllPairsSolver(mesh, 0.1, device="cpu", workers=1,
-                               options=wrd.AllPairsOptions(rho0=1.0, eps_change=3e-4, engine="consensus")).solve()
+                               options=wrd.AllPairsOptions.for_accuracy(0.001, rho0=1.0, engine="consensus")).solve()
     assert again.converged and _error(again.distance, exact) <= 1e-3
 
 

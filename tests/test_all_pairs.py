@@ -327,8 +327,10 @@ def test_warm_start_from_another_alpha_hat_reaches_the_new_minimizer(bumpy42, tm
     assert again.iterations == first.iterations and np.array_equal(again.distance, first.distance)
     cold = wrd.all_pairs(mesh, 0.1, engine="consensus")
     warm = wrd.all_pairs(mesh, 0.1, initial=path, engine="consensus")
-    assert warm.converged and warm.iterations < cold.iterations and warm.iterations == len(warm.history)
-    assert np.abs(warm.distance - refs[0.1]).max() <= 0.01 * refs[0.1].max()
+    assert warm.converged and warm.iterations <= cold.iterations and warm.iterations == len(warm.history)
+    # the change test cannot tell the start's head start (0.016% against 0.046% at the same stop)
+    error = [np.abs(r.distance - refs[0.1]).max() / refs[0.1].max() for r in (warm, cold)]
+    assert error[0] <= 0.5 * error[1]
     assert np.array_equal(warm.distance, warm.distance.T)
 
 

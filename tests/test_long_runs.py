@@ -119,9 +119,9 @@ def test_checkpoints_and_change_tests_read_the_state_without_copying_it(sphere64
         written.append({name: not a.flags.owndata for name, a in arrays.items() if a.ndim >= 3})
         return savez(file, **arrays)
 
-    def recording_update(self, u):
+    def recording_update(self, u, iteration):
         compared.append(not u.flags.owndata)
-        return update(self, u)
+        return update(self, u, iteration)
 
     monkeypatch.setattr(np, "savez", recording_savez)
     monkeypatch.setattr(stopping.ExtrapolatedChangeTest, "update", recording_update)

@@ -44,16 +44,17 @@ def test_all_pairs_default_stop_within_half_a_percent(cat80, alpha_hat, device):
 def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
     mesh, refs = cat80
     res = wrd.AllPairsSolver(mesh, alpha_hat, workers=1, triangulation="mesh").solve(accuracy=accuracy)
-    assert res.converged and res.error_estimate <= 0.3 * accuracy
+    assert res.converged and res.error_estimate <= 0.7 * accuracy   # eps_change
     assert _error(res.distance, refs[alpha_hat]) <= accuracy
 
 
 def test_accuracy_sets_every_tolerance():
     default, same = wrd.AllPairsOptions(), wrd.AllPairsOptions.for_accuracy(0.005)   # the defaults' accuracy
-    assert (same.eps_rel, same.eps_rel_consensus, same.eps_rel_dual, same.eps_excess, same.cg_fraction) == (
-        default.eps_rel, default.eps_rel_consensus, default.eps_rel_dual, default.eps_excess, default.cg_fraction)
+    assert (same.eps_rel, same.eps_rel_consensus, same.eps_rel_dual, same.eps_change, same.eps_excess, same.cg_fraction) == (
+        default.eps_rel, default.eps_rel_consensus, default.eps_rel_dual, default.eps_change, default.eps_excess,
+        default.cg_fraction)
     fine, coarse = wrd.AllPairsOptions.for_accuracy(0.001), wrd.AllPairsOptions.for_accuracy(0.02, max_iterations=9)
-    assert fine.eps_change == pytest.approx(3e-4) and coarse.eps_change == pytest.approx(6e-3)
+    assert fine.eps_change == pytest.approx(7e-4) and coarse.eps_change == pytest.approx(1.4e-2)
     assert fine.eps_excess == pytest.approx(1e-3) and coarse.eps_excess == pytest.approx(2e-2)
     assert fine.eps_rel_consensus == pytest.approx(default.eps_rel_consensus / 5)
     assert coarse.eps_rel_dual == pytest.approx(4 * default.eps_rel_dual) and coarse.max_iterations == 9

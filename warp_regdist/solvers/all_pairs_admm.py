@@ -32,9 +32,10 @@ Penalties and stopping test (:class:`~warp_regdist.AllPairsOptions`; ``accuracy`
 tolerances from the error accepted, :meth:`~warp_regdist.AllPairsOptions.for_accuracy`):
 rho_k = sqrt(A) min(rho_max, rho0 2^(k / rho_doubling)), rho2_k = rho2_factor rho_k^2 / (sqrt(A) A)
 (the consensus penalty grows faster than rho), over-relaxation in all three steps; stop when every
-residual is below its relative tolerance, the change still to come at the rate of the last two
-windows, c_k / (1 - c_k / c_(k - window)) with c_k = max |U_k - U_(k - window)| / max U_k, is at
-most eps_change, and U's steepness beyond the constraint is at most eps_excess. K2 changes with the
+residual is below its relative tolerance, the change still to come at the slower of the last two
+windows' rate and 1 / k (:class:`~warp_regdist.solvers.stopping.ExtrapolatedChangeTest`, with c_k = max
+|U_k - U_(k - window)| / max U_k) is at most eps_change, and U's steepness beyond the constraint is at
+most eps_excess. K2 changes with the
 penalties: ``BatchedPCG.set_matrix`` replaces its values (same pattern as W_D), the multigrid
 preconditioner is built once.
 """

@@ -160,7 +160,7 @@ class PairsRun:
         self.history.append(res / np.maximum(eps, 1e-300))
         due = self.change_test.due(it)
         if due:
-            self.change_test.update(st.view("U").reshape(-1, 1))
+            self.change_test.update(st.view("U").reshape(-1, 1), it)
             if tol.eps_excess < math.inf:
                 self.last_excess = st.gradient_excess(float(np.max(self.change_test.snapshot)))
         if self.callback is not None:

@@ -7,8 +7,8 @@ duals do (:func:`dual_scale`): a test relative to |D y| alone never holds where 
 constraint is active. A column (a source set, or the all-pairs matrix as one column) also
 waits for its change test: :class:`ChangeTest` (single sources: the change of the last
 window, and its error estimate :func:`vertex_extrapolation`) or :class:`ExtrapolatedChangeTest`
-(all pairs: the change still to come at the rate of the last two windows, and
-:func:`gradient_excess`). The u-step's PCG stops at :func:`cg_tolerance`.
+(all pairs: the change still to come at the slower of the last two windows' rate and 1 / k,
+and :func:`gradient_excess`). The u-step's PCG stops at :func:`cg_tolerance`.
 
 DistanceSolver runs this rule on the device (kernels/single_source.py ``change_measure`` and
 ``admm_check``, with the constants of ``single_source_batch.DeviceRule``); the tests run the
@@ -164,31 +164,49 @@ class ChangeTest:
 
 
 class ExtrapolatedChangeTest(ChangeTest):
-    """Per column, with c_k = max_i |u_k - u_(k - window)| / max(max_i u_k, 1e-300) (u >= 0):
-    settled while change = c_k / (1 - c_k / c_(k - window)) <= eps, the change still to come
-    if u keeps converging at the rate of the last two windows (the rest of a geometric
-    series). change is inf before the third comparison (the first only records u) and while
-    c grows, 0 once u stops moving. eps = inf: always settled.
+    """Per column, with c_k = max_i |u_k - u_(k - window)| / max(max_i u_k, 1e-300) (u >= 0) and k the
+    iteration of the comparison: settled while
+
+        change = max(c_k / (1 - q),  c_(k - window) min(k / window, 1 / (1 - rate_cap))) <= eps,
+        q = min(c_k / c_(k - window), rate_cap),
+
+    the change still to come if u converged no faster than at the rate of the last two windows (the
+    rest of a geometric series, its rate capped as in :func:`vertex_extrapolation`) nor than like 1 / k
+    (u_k - u_inf ~ 1 / k leaves about k / window windows' changes to come, counted with the previous
+    window's, which is the larger while c shrinks; at most as many windows as the capped rate gives).
+    All-pairs iterates on obtuse meshes creep at about 1 / k, where the geometric rest alone fell up
+    to 14 times short of the error at the stop (docs/design/all-pairs.md). change is inf before the
+    third comparison (the first only records u), 0 once u stops moving. eps = inf: always settled.
 
     Holds ``window_change`` (c of the last comparison) and ``change`` (columns,) besides
     ``snapshot`` and ``settled``.
     """
 
-    def __init__(self, window, eps, columns):
+    def __init__(self, window, eps, columns, rate_cap=ESTIMATE_RATE_CAP):
         self.window_change = np.full(columns, math.inf)
         self.change = np.full(columns, math.inf)
+        self.iteration, self.rate_cap = 0, rate_cap
         super().__init__(window, eps, columns)
         self._unsettle()
 
+    def update(self, u, iteration):
+        """Compare the first c columns with ``u`` (rows, c), the iterate after ``iteration`` iterations."""
+        self.iteration = iteration
+        return super().update(u)
+
     def _judge(self, moved, u):
         top = u.max(axis=0)
+        windows = min(self.iteration / self.window, 1.0 / (1.0 - self.rate_cap))
         for j in range(moved.size):
             c = float(moved[j] / max(top[j], 1e-300))
             before = self.window_change[j]
-            if c < before < math.inf:
-                self.change[j] = c / (1.0 - c / before)
-            else:  # u did not move, the first comparison, or a change that grows
-                self.change[j] = 0.0 if c == 0.0 else math.inf
+            if c == 0.0:  # u did not move: a fixed point
+                self.change[j] = 0.0
+            elif before < math.inf:
+                q = c / before if c < self.rate_cap * before else self.rate_cap
+                self.change[j] = max(c / (1.0 - q), before * windows)
+            else:  # the first comparison
+                self.change[j] = math.inf
             self.window_change[j] = c
         self.settled[:moved.size] = self.change[:moved.size] <= self.eps
 
