@@ -102,10 +102,11 @@ def test_resumed_run_equals_uninterrupted(sphere642, tmp_path):
     assert rest.cg_iterations == whole.cg_iterations
 
 
-@pytest.mark.parametrize("path", ["", 3])
-def test_checkpoint_that_is_no_file_name_is_refused_before_the_run(sphere642, path):
-    with pytest.raises(ValueError, match=r"expected checkpoint as a file name \(str or os.PathLike\), got (''|3)"):
-        wrd.all_pairs(sphere642, 0.03, max_iterations=2, checkpoint=path)
+@pytest.mark.parametrize("role", ["checkpoint", "resume", "initial"])
+@pytest.mark.parametrize("path", ["", 3, True])
+def test_checkpoint_that_is_no_file_name_is_refused_before_the_run(sphere642, role, path):
+    with pytest.raises(ValueError, match=rf"expected {role} as a file name \(str or os.PathLike\), got {path!r}"):
+        wrd.all_pairs(sphere642, 0.03, max_iterations=2, **{role: path})
 
 
 def test_checkpoints_and_change_tests_read_the_state_without_copying_it(sphere642, tmp_path, monkeypatch):

@@ -60,7 +60,7 @@ from ..geometry.operators import build_operators, choose_triangulation, largest_
 from ..kernels.lanes import SCALARS
 from ..options import AllPairsOptions
 from .admm import PenaltySchedule
-from .all_pairs_checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_room,
+from .all_pairs_checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
 from .all_pairs_eigenbasis import EigenbasisADMM, EigenbasisUStep
 from .all_pairs_run import PairsRun, final_result
@@ -245,9 +245,11 @@ class AllPairsSolver:
         check_weight(checkpoint_seconds, "checkpoint_seconds", positive=True)
         if callback is not None and not callable(callback):
             raise ValueError(f"expected callback as a callable or None, got {callback!r}")
+        resume = None if resume is None else checkpoint_name(resume, "resume")
+        initial = None if initial is None else checkpoint_name(initial, "initial")
         if resume is not None and initial is not None:
             raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: "
-                             f"{os.fspath(resume)!r} and {os.fspath(initial)!r}")
+                             f"{resume!r} and {initial!r}")
         engine = self.engine(run_options)
         run_options = run_options.for_engine(engine)
         fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation,

@@ -19,7 +19,7 @@ from ..errors import CheckpointWarning, WriteError
 from ..kernels.lanes import SCALARS, lane_width
 from .all_pairs_state import STATE_ROWS
 
-__all__ = ["Checkpoint", "checkpoint_bytes", "checkpoint_room", "check_no_progress", "saved_iteration",
+__all__ = ["Checkpoint", "checkpoint_bytes", "checkpoint_name", "checkpoint_room", "check_no_progress", "saved_iteration",
            "problem_fingerprint", "read_checkpoint"]
 
 
@@ -66,13 +66,19 @@ def checkpoint_bytes(n, m, dtype, max_iterations):
             + 56 * (max_iterations + 1) + 65536)
 
 
+def checkpoint_name(path, role):
+    """``path`` (the ``role`` argument: "checkpoint", "resume", "initial") as a str; ValueError unless it
+    is a non-empty str or os.PathLike."""
+    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
+        raise ValueError(f"expected {role} as a file name (str or os.PathLike), got {path!r}")
+    return os.fspath(path)
+
+
 def checkpoint_room(path, size):
     """The (path, bytes, what) entry of :func:`~warp_regdist.atomic_write.check_room` for a checkpoint of
     ``size`` bytes rewritten during a run: each save writes a new copy beside the last one, so the run
     needs room for two, less a file already at ``path``. ValueError unless ``path`` can be written."""
-    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
-        raise ValueError(f"expected checkpoint as a file name (str or os.PathLike), got {path!r}")
-    path = os.fspath(path)
+    path = checkpoint_name(path, "checkpoint")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise ValueError(f"expected checkpoint in an existing directory, got {path!r} (no directory {folder!r})")
