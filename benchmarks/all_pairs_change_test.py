@@ -121,7 +121,8 @@ def main():
     parser.add_argument("--cache", required=True, help="the folder of the long-run references")
     parser.add_argument("--cases", nargs="*", default=[], metavar="MESH:VERTICES:ALPHA_HAT",
                         help="more decimations (a shared mesh's name or a mesh file)")
-    parser.add_argument("--engines", nargs="+", default=["eigenbasis", "consensus"], choices=["eigenbasis", "consensus"])
+    parser.add_argument("--engines", nargs="+", default=["eigenbasis", "consensus"],
+                        choices=["eigenbasis", "consensus"])
     parser.add_argument("--only-extra", action="store_true", help="only the --cases")
     parser.add_argument("--iterations", type=int, default=None, help="per run (default: ITERATIONS per engine)")
     parser.add_argument("--output", default=None, help="default: RESULTS, with _ENGINE for one engine")

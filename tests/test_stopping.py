@@ -50,9 +50,8 @@ def test_all_pairs_stops_within_the_accuracy_asked(cat80, alpha_hat, accuracy):
 
 def test_accuracy_sets_every_tolerance():
     default, same = wrd.AllPairsOptions(), wrd.AllPairsOptions.for_accuracy(0.005)   # the defaults' accuracy
-    assert (same.eps_rel, same.eps_rel_consensus, same.eps_rel_dual, same.eps_change, same.eps_excess, same.cg_fraction) == (
-        default.eps_rel, default.eps_rel_consensus, default.eps_rel_dual, default.eps_change, default.eps_excess,
-        default.cg_fraction)
+    fields = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "cg_fraction")
+    assert [getattr(same, f) for f in fields] == [getattr(default, f) for f in fields]
     fine, coarse = wrd.AllPairsOptions.for_accuracy(0.001), wrd.AllPairsOptions.for_accuracy(0.02, max_iterations=9)
     assert fine.eps_change == pytest.approx(7e-4) and coarse.eps_change == pytest.approx(1.4e-2)
     assert fine.eps_excess == pytest.approx(1e-3) and coarse.eps_excess == pytest.approx(2e-2)
