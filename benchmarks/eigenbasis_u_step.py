@@ -12,8 +12,9 @@ triangular product and one symmetric rank-2k update, and Phi^T Diag(mu) Phi as t
 
 Both run on the same setup (the real stiffness and areas of each mesh, intrinsic operators) and the
 same symmetric right-hand side, alternated, REPEATS calls each: the median seconds of each, their
-ratio and the max difference of the two U in units of the largest |U|. Also the engine's ms per
-iteration (30 iterations from zeros) for the share of the U-step in it. Writes
+ratio and the max difference of the two U in units of the largest |U|. Also the U-step's setup
+(eigendecomposition and the diagonal's response) and the engine's ms per iteration (30 iterations
+from zeros) for the share of the U-step in it. Writes
 benchmarks/results/eigenbasis_u_step.csv.
 """
 
@@ -60,7 +61,9 @@ def rows_for(name, mesh, dtypes, repeats):
     n = mesh.n_vertices
     rows = []
     for dtype in dtypes:
+        t0 = time.perf_counter()
         step = EigenbasisUStep(ops.stiffness, ops.vertex_volumes, dtype)
+        setup = time.perf_counter() - t0
         R = np.random.default_rng(0).standard_normal((n, n))
         R += R.T
         times = {"package": [], "six products": []}
@@ -74,7 +77,7 @@ def rows_for(name, mesh, dtypes, repeats):
                                     options=wrd.AllPairsOptions(engine="eigenbasis", max_iterations=ITERATIONS))
         res = solver.solve()
         package, baseline = (float(np.median(times[k])) for k in ("package", "six products"))
-        rows.append(dict(mesh=name, n=n, dtype=dtype, threads=len(os.sched_getaffinity(0)),
+        rows.append(dict(mesh=name, n=n, dtype=dtype, threads=len(os.sched_getaffinity(0)), setup_s=round(setup, 2),
                          package_ms=round(1e3 * package, 1), six_products_ms=round(1e3 * baseline, 1),
                          ratio=round(baseline / package, 2),
                          difference=float(f"{difference / np.abs(U).max():.2e}"),
