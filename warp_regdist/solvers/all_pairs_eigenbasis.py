@@ -147,9 +147,8 @@ class EigenbasisADMM(PairsState):
         self.rho_v = 1.0
         self.penalties = None
         self._areas = setup.vertex_volumes.astype(np.float64)
-        self._weights = np.outer(self._areas, self._areas)
         dt = np.dtype(dtype)
-        self._areas_dt, self._weights_dt = self._areas.astype(dt), self._weights.astype(dt)
+        self._areas_dt, self._weights_dt = self._areas.astype(dt), np.outer(self._areas, self._areas).astype(dt)
         self._lanes = np.zeros((self.n, setup.nb * setup.W), dtype=dt)  # U padded to whole lanes
 
     def _matrix(self, name):
@@ -163,8 +162,9 @@ class EigenbasisADMM(PairsState):
         """DZ <- the last element step's D Z (DZ_acc); returns per-column |D Z - DZ_old|^2 and |D Y|^2
         (nb W,); DY_acc keeps D Y for the U-step."""
         dz, dz_old, dy = (self.view(name).reshape(self.n, -1) for name in ("DZ_acc", "DZ", "DY_acc"))
-        s2 = np.square(dz.astype(np.float64) - dz_old).sum(axis=0)
-        dy2 = np.square(dy.astype(np.float64)).sum(axis=0)
+        step = dz - dz_old
+        s2 = np.einsum("ij,ij->j", step, step, dtype=np.float64)
+        dy2 = np.einsum("ij,ij->j", dy, dy, dtype=np.float64)
         self.put("DZ", self.view("DZ_acc"))
         return s2, dy2
 
@@ -191,9 +191,9 @@ class EigenbasisADMM(PairsState):
     def consensus(self):
         """No consensus step: per-column R2, G2, Z2 sums (3, nb W) and the pair sums (5,) with X = U, H = 0."""
         acc = self.view("acc").reshape(5, -1)
-        U = self._matrix("U").astype(np.float64)
+        U = self._matrix("U")
         pairs = np.zeros(5)
-        pairs[X2] = pairs[U2] = float(np.einsum("ij,ij->", self._weights, U * U))
+        pairs[X2] = pairs[U2] = float(self._areas @ (self._areas_dt @ (U * U)).astype(np.float64))  # a^T U^2 a
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
     def _steepness(self):
