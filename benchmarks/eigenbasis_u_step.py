@@ -13,8 +13,9 @@ triangular product and one symmetric rank-2k update, and Phi^T Diag(mu) Phi as t
 Both run on the same setup (the real stiffness and areas of each mesh, intrinsic operators) and the
 same symmetric right-hand side, alternated, REPEATS calls each: the median seconds of each, their
 ratio and the max difference of the two U in units of the largest |U|. Also the U-step's setup
-(eigendecomposition and the diagonal's response) and the engine's ms per iteration (30 iterations
-from zeros) for the share of the U-step in it. Writes
+(eigendecomposition and the diagonal's response), the engine's ms per iteration (30 iterations
+from zeros, after its setup) for the share of the U-step in it, and the consensus engine's (worker
+processes on all cores) on the same problem. Writes
 benchmarks/results/eigenbasis_u_step.csv.
 """
 
@@ -73,15 +74,19 @@ def rows_for(name, mesh, dtypes, repeats):
                 U = f(R, 2.5)
                 times[label].append(time.perf_counter() - t0)
         difference = np.abs(step(R, 2.5).astype(np.float64) - six_products(step, R, 2.5)).max()
-        solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", dtype=dtype, triangulation="intrinsic",
-                                    options=wrd.AllPairsOptions(engine="eigenbasis", max_iterations=ITERATIONS))
-        res = solver.solve()
+        iteration_ms = {}
+        for engine in ("eigenbasis", "consensus"):
+            solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", dtype=dtype, triangulation="intrinsic",
+                                        options=wrd.AllPairsOptions(engine=engine))
+            getattr(solver, "u_step" if engine == "eigenbasis" else "hierarchy")  # the setup, outside the timing
+            res = solver.solve(max_iterations=ITERATIONS)
+            iteration_ms[engine] = round(1e3 * res.seconds / res.iterations, 1)
         package, baseline = (float(np.median(times[k])) for k in ("package", "six products"))
         rows.append(dict(mesh=name, n=n, dtype=dtype, threads=len(os.sched_getaffinity(0)), setup_s=round(setup, 2),
                          package_ms=round(1e3 * package, 1), six_products_ms=round(1e3 * baseline, 1),
                          ratio=round(baseline / package, 2),
                          difference=float(f"{difference / np.abs(U).max():.2e}"),
-                         iteration_ms=round(1e3 * res.seconds / res.iterations, 1)))
+                         iteration_ms=iteration_ms["eigenbasis"], consensus_iteration_ms=iteration_ms["consensus"]))
         print(rows[-1], flush=True)
     return rows
 
