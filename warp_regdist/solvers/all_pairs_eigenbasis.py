@@ -10,9 +10,10 @@ consensus variable and the U-step is solved exactly:
 (M = diag(A_V), W the stiffness, D = G^T M_F, a the over-relaxation). With W' = M^(-1/2) W M^(-1/2)
 = Phi Lambda Phi^T, X = M^(1/2) U M^(1/2) solves W' X + X W' = C entrywise in the eigenbasis
 (8 n^3 flops of symmetric and triangular BLAS an iteration, on the host), and the diagonal's
-multipliers mu solve one (n + 1) system set up once (:class:`EigenbasisUStep`). The Z-step is the consensus engine's
-element kernel with X = U (kernels/all_pairs.py), so the state, its checkpoints and the stopping
-rule are those of :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM` with X = U and H = 0.
+multipliers mu solve one (n + 1) system set up once (:class:`EigenbasisUStep`). The Z-step is the
+consensus engine's element kernel with X = U (kernels/all_pairs.py), so the state, its checkpoints
+and the stopping rule are those of :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM`
+with X = U and H = 0.
 """
 
 from __future__ import annotations
@@ -33,9 +34,9 @@ __all__ = ["EigenbasisUStep", "EigenbasisADMM"]
 def diagonal_response(Phi, lam, nodes=80):
     """K_ik = sum over (p, q) != (0, 0) of Phi_ip Phi_kp Phi_iq Phi_kq / (lam_p + lam_q) (n, n): the
     diagonal of the U-step's response to Diag(e_k), as the integral over t of H_t(i, k)^2 - (phi0_i
-    phi0_k)^2 with H_t = Phi e^(-lam t) Phi^T, by the trapezoid rule in log t (``nodes`` rank-n updates) over
-    t in [1e-10 / lam_max, 60 / lam_1] (what lies outside is below 1e-10 of K; 6e-11 measured against the
-    sum itself on a 42-vertex mesh)."""
+    phi0_k)^2 with H_t = Phi e^(-lam t) Phi^T, by the trapezoid rule in log t (``nodes`` rank-n
+    updates) over t in [1e-10 / lam_max, 60 / lam_1] (what lies outside is below 1e-10 of K; 6e-11
+    measured against the sum itself on a 42-vertex mesh)."""
     s = np.linspace(np.log(1e-10 / lam[-1]), np.log(60 / lam[1]), nodes)
     K, P1, F0 = np.zeros((len(lam),) * 2), Phi[:, 1:], np.outer(Phi[:, 0], Phi[:, 0])
     syrk = sl.get_blas_funcs("syrk", dtype=Phi.dtype)
@@ -147,9 +148,10 @@ class EigenbasisADMM(PairsState):
         self.rho_v = 1.0
         self.penalties = None
         self._areas = setup.vertex_volumes.astype(np.float64)
-        dt = np.dtype(dtype)
-        self._areas_dt, self._weights_dt = self._areas.astype(dt), np.outer(self._areas, self._areas).astype(dt)
-        self._lanes = np.zeros((self.n, setup.nb * setup.W), dtype=dt)  # U padded to whole lanes
+        self._real = np.dtype(dtype).type
+        self._areas_dt = self._areas.astype(self._real)
+        self._weights_dt = np.outer(self._areas, self._areas).astype(self._real)
+        self._lanes = np.zeros((self.n, setup.nb * setup.W), dtype=self._real)  # U padded to whole lanes
 
     def _matrix(self, name):
         """State array ``name`` as an (n, n) numpy array (a view on the CPU)."""
@@ -172,7 +174,7 @@ class EigenbasisADMM(PairsState):
         """The U-step (dense, on the host) then the element step; returns 0 (no PCG iterations)."""
         rho = self.penalties[0]
         n = self.n
-        B = self._matrix("DZ") * self._areas_dt.dtype.type(rho)
+        B = self._matrix("DZ") * self._real(rho)
         B -= self._matrix("DY_acc")
         B *= self._areas_dt[None, :]
         R = B + B.T
