@@ -94,7 +94,9 @@ class EigenbasisUStep:
         C = ((s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]).T  # symmetric, Fortran order
         C[np.diag_indices(n)] *= 0.5  # C = L + L^T with L its lower triangle: Phi^T C Phi = syr2k(Phi, L Phi)
         Y = self._times_dinv(self._syr2k(1.0, Phi, self._trmm(1.0, C, Phi, lower=1), trans=1, lower=1))
+        del C  # at most four (n, n) temporaries at a time (memory_estimate)
         P = self._trmm(1.0, Y, Phi, side=1, lower=1)  # Phi Y, diag(Phi (Y + Y^T) Phi^T) = 2 rowsum(Phi Y * Phi)
+        del Y
         diag = 2 * np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale
         rhs = np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]])
         sol = sl.lu_solve(self.border, rhs)  # the scaled multipliers M^(-1) mu / scale, and c
@@ -105,6 +107,7 @@ class EigenbasisUStep:
                 S = self._syrk(sign, (Phi[rows] * np.sqrt(np.abs(mu[rows]))[:, None]).T, beta=1.0, c=S,
                                overwrite_c=1, lower=1)
         P += self._trmm(1.0, self._times_dinv(S), Phi, side=1, lower=1)
+        del S
         U = self._syr2k(1 / scale, P, Phi, lower=1).T  # Phi (Y + Y^T) Phi^T / scale: its upper triangle
         U *= s[:, None]
         U *= s[None, :]

@@ -37,14 +37,15 @@ def memory_estimate(n, m, dtype="float64", device="cpu", engine="consensus"):
     the host; checkpoints write the state from views, not copies, on the CPU). The eigenbasis engine:
     U, H, DZ and the divergences (5) and the z/y state on the device, the same host arrays and
     the U-step's Phi, 1 / (lam_p + lam_q) and four (n, n) temporaries in ``dtype``, the LU factors of its
-    bordered system and two (n, n) temporaries of its right-hand side (float64), and its result in lanes.
+    bordered system (float64), its right-hand side, one temporary and A_V A_V^T in ``dtype``, and its
+    result in lanes.
     """
     W = lane_width(SCALARS[dtype], n)
     cols = -(-n // W) * W
     size = np.dtype(dtype).itemsize
     host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
     if engine == "eigenbasis":
-        u_step = size * 6 * n * n + 8 * (n + 1) ** 2 + 16 * n * n + size * n * cols
+        u_step = size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols
         return size * cols * (5 * n + 3 * m), host_bytes + u_step
     return size * cols * (13 * n + 3 * m), host_bytes
 
