@@ -11,6 +11,7 @@
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping    # eigenbasis against consensus engine
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 1000
     python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 600 --mesh bunny.obj --alpha-hat 0.1
+    python benchmarks/all_pairs.py --engines --cache /tmp/stopping --decimate 302 --mesh spot_rr_holes --exact
 
 For each precision: ``wrd.all_pairs`` at default settings (time, ADMM and CG iterations,
 the seven final residuals and their tolerances, estimated memory, bytes per n^2, peak
@@ -30,7 +31,7 @@ error, the result's error_estimate and gradient_excess in % of the max distance,
 benchmarks/results/all_pairs_accuracy.csv.
 
 With ``--larger``: the same at 0.01 and 0.005 on decimations of the shared meshes to 300-500 vertices
-(``LARGER``), whose exact minimizers do not fit Clarabel, against 5,000 iterations of the symmetric
+(``LARGER``; their exact minimizers only with ``--exact``, below), against 5,000 iterations of the symmetric
 splitting (research/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
 beside each run the same solve without the steepness test (``eps_excess=inf``, columns
 ``unchecked_*``). With ``--triangulations mesh intrinsic`` each decimation is solved on both operators
@@ -45,7 +46,9 @@ that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_
 ``--decimate N`` only the runs on cat_rr (or ``--mesh NAME``, a shared mesh or a mesh file) decimated to about
 N vertices (at ``--alpha-hat``), against its own 5,000-iteration reference, into
 benchmarks/results/all_pairs_engines_N.csv (all_pairs_engines_NAME_N.csv for another mesh,
-all_pairs_engines_NAME_ALPHA_N.csv at another alpha_hat than 0.03).
+all_pairs_engines_NAME_ALPHA_N.csv at another alpha_hat than 0.03). With ``--exact`` as well, against the exact
+minimizer (Clarabel, intrinsic operators; about 20 minutes and 5 GB at 300 vertices, cached in ``--cache``), with
+the 5,000-iteration run's own error as one more row, into ..._N_exact.csv.
 """
 
 import argparse
@@ -109,20 +112,43 @@ def exact_cases(cache):
     return cases
 
 
-def larger_cases(cache, triangulation="mesh", cases=LARGER):
-    """Yield (name, mesh, alpha_hat, reference) of ``cases`` (default ``LARGER``) on ``triangulation``, each
-    reference computed once into ``cache``."""
+def long_run_reference(cache, name, mesh, alpha_hat, triangulation):
+    """The 5,000-iteration symmetric splitting's U on ``mesh``, computed once into ``cache``."""
     import stopping
     from symmetric_all_pairs import SymmetricADMM
+
+    key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
+    key += "" if triangulation == "mesh" else f" {triangulation}"
+    reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat, triangulation).reference(
+        REFERENCE_ITERATIONS)[0])
+    return np.maximum(reference, 0.0)
+
+
+def exact_reference(cache, name, mesh, alpha_hat):
+    """The exact minimizer on ``mesh``'s intrinsic operators (Clarabel; minutes to an hour at 300-500
+    vertices), computed once into ``cache``."""
+    import all_pairs_reference as apr
+    import reference_solver as rs
+    import stopping
+
+    V, F = mesh.vertices, mesh.elements
+    alpha = alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum())
+    return stopping.cached(cache, f"pairs {name} decimated {mesh.n_vertices} {alpha_hat}",
+                           lambda: stopping.exact_pairs(apr, V, F, alpha))
+
+
+def larger_cases(cache, triangulation="mesh", cases=LARGER, exact=False):
+    """Yield (name, mesh, alpha_hat, reference) of ``cases`` (default ``LARGER``) on ``triangulation``, each
+    reference (the long run's, or with ``exact`` the exact minimizer on the intrinsic operators) computed once
+    into ``cache``."""
+    import stopping
 
     for path, vertices, alpha_hat in cases:
         mesh = stopping.decimated(path, vertices)
         name = os.path.splitext(os.path.basename(path))[0]
-        key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
-        key += "" if triangulation == "mesh" else f" {triangulation}"
-        reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat, triangulation).reference(
-            REFERENCE_ITERATIONS)[0])
-        yield f"{name} decimated", mesh, alpha_hat, np.maximum(reference, 0.0)
+        reference = (exact_reference(cache, name, mesh, alpha_hat) if exact
+                     else long_run_reference(cache, name, mesh, alpha_hat, triangulation))
+        yield f"{name} decimated", mesh, alpha_hat, reference
 
 
 def _run_columns(res, reference, prefix=""):
@@ -149,6 +175,17 @@ def accuracy_rows(cases, accuracies, baseline=False, triangulation="mesh", engin
             rows.append(row)
             print(row, flush=True)
     return rows
+
+
+def long_run_row(cache, name, mesh, alpha_hat, exact):
+    """The 5,000-iteration reference's max error against the exact minimizer, as an engine's row."""
+    reference = long_run_reference(cache, name.removesuffix(" decimated"), mesh, alpha_hat, "intrinsic")
+    row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, method="all_pairs",
+               engine=f"symmetric splitting, {REFERENCE_ITERATIONS:,} it.", triangulation="intrinsic",
+               iterations=REFERENCE_ITERATIONS,
+               error_pct=round(100 * float(np.abs(reference - exact).max() / exact.max()), 3))
+    print(row, flush=True)
+    return row
 
 
 def engine_cost_rows():
@@ -190,6 +227,9 @@ def main():
     parser.add_argument("--decimate", type=int, default=None, metavar="N",
                         help="with --engines: only --mesh decimated to about N vertices (its own reference; "
                         "at --alpha-hat; all_pairs_engines[_NAME][_ALPHA]_N.csv)")
+    parser.add_argument("--exact", action="store_true",
+                        help="with --decimate: against the exact minimizer (Clarabel, cached in --cache) and the "
+                        "5,000-iteration run as a row of its own (all_pairs_engines[_NAME][_ALPHA]_N_exact.csv)")
     parser.add_argument("--triangulations", nargs="+", default=["mesh"], choices=["mesh", "intrinsic"],
                         help="with --larger: the operators' triangulations (one reference and one set of runs each)")
     args = parser.parse_args()
@@ -204,8 +244,12 @@ def main():
             name = os.path.splitext(os.path.basename(args.mesh))[0]
             tag = ("" if name == "cat_rr" else f"_{name}") + ("" if args.alpha_hat == 0.03 else f"_{args.alpha_hat:g}")
             output = ENGINES_RESULTS.replace(".csv", f"{tag}_{args.decimate}.csv")
-            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", ((args.mesh, args.decimate, args.alpha_hat),)),
+            output = output.replace(".csv", "_exact.csv") if args.exact else output
+            case = ((args.mesh, args.decimate, args.alpha_hat),)
+            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", case, exact=args.exact),
                                  LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
+            if args.exact:
+                rows.append(long_run_row(args.cache, *next(larger_cases(args.cache, "intrinsic", case, exact=True))))
         else:
             output = ENGINES_RESULTS
             rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
