@@ -47,7 +47,7 @@ that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_
 N vertices (at ``--alpha-hat``), against its own 5,000-iteration reference, into
 benchmarks/results/all_pairs_engines_N.csv (all_pairs_engines_NAME_N.csv for another mesh,
 all_pairs_engines_NAME_ALPHA_N.csv at another alpha_hat than 0.03). With ``--exact`` as well, against the exact
-minimizer (Clarabel, intrinsic operators; about 20 minutes and 5 GB at 300 vertices, cached in ``--cache``), with
+minimizer (Clarabel, intrinsic operators; about 15 minutes and 3 GB at 304 vertices, cached in ``--cache``), with
 the 5,000-iteration run's own error as one more row, into ..._N_exact.csv.
 """
 
