@@ -246,10 +246,10 @@ def main():
             output = ENGINES_RESULTS.replace(".csv", f"{tag}_{args.decimate}.csv")
             output = output.replace(".csv", "_exact.csv") if args.exact else output
             case = ((args.mesh, args.decimate, args.alpha_hat),)
-            rows = accuracy_rows(larger_cases(args.cache, "intrinsic", case, exact=args.exact),
-                                 LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
+            cases = list(larger_cases(args.cache, "intrinsic", case, exact=args.exact))
+            rows = accuracy_rows(cases, LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
             if args.exact:
-                rows.append(long_run_row(args.cache, *next(larger_cases(args.cache, "intrinsic", case, exact=True))))
+                rows.append(long_run_row(args.cache, *cases[0]))
         else:
             output = ENGINES_RESULTS
             rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
