@@ -94,21 +94,22 @@ def quality(D, area):
 
 
 def exact_cases(cache):
-    """(name, mesh, alpha_hat, exact minimizer) of the stored references and of the cached ones."""
+    """(name, mesh, alpha_hat, exact minimizer, triangulation): the stored references (tests/data, on the
+    mesh's own triangles) and the cached ones (benchmarks/stopping.py, on the intrinsic Delaunay operators)."""
     tests = os.path.join(HERE, "..", "tests", "data")
     cases = []
     for file, name in (("all_pairs_bumpy42.npz", "bumpy icosphere"), ("stopping_cat80.npz", "cat_rr decimated")):
         d = np.load(os.path.join(tests, file))
         mesh = wrd.Mesh(d["vertices"], d["faces"].astype(np.int64))
-        cases += [(name, mesh, 0.03, d["U_003"]), (name, mesh, 0.1, d["U_01"])]
+        cases += [(name, mesh, 0.03, d["U_003"], "mesh"), (name, mesh, 0.1, d["U_01"], "mesh")]
     if cache is not None:
         import stopping
 
         for alpha_hat in (0.03, 0.1):
             for name, mesh in stopping.pairs_set() + stopping.larger_pairs_set():
                 exact = stopping.cached(cache, f"pairs {name} {mesh.n_vertices} {alpha_hat}", None)
-                if exact is not None and mesh.n_vertices != 80:
-                    cases.append((name, mesh, alpha_hat, exact))
+                if exact is not None:
+                    cases.append((name, mesh, alpha_hat, exact, "intrinsic"))
     return cases
 
 
@@ -138,7 +139,7 @@ def exact_reference(cache, name, mesh, alpha_hat):
 
 
 def larger_cases(cache, triangulation="mesh", cases=LARGER, exact=False):
-    """Yield (name, mesh, alpha_hat, reference) of ``cases`` (default ``LARGER``) on ``triangulation``, each
+    """Yield (name, mesh, alpha_hat, reference, triangulation) of ``cases`` (default ``LARGER``), each
     reference (the long run's, or with ``exact`` the exact minimizer on the intrinsic operators) computed once
     into ``cache``."""
     import stopping
@@ -148,7 +149,7 @@ def larger_cases(cache, triangulation="mesh", cases=LARGER, exact=False):
         name = os.path.splitext(os.path.basename(path))[0]
         reference = (exact_reference(cache, name, mesh, alpha_hat) if exact
                      else long_run_reference(cache, name, mesh, alpha_hat, triangulation))
-        yield f"{name} decimated", mesh, alpha_hat, reference
+        yield f"{name} decimated", mesh, alpha_hat, reference, triangulation
 
 
 def _run_columns(res, reference, prefix=""):
@@ -158,10 +159,11 @@ def _run_columns(res, reference, prefix=""):
             f"{prefix}excess_pct": round(100 * res.gradient_excess, 3)}
 
 
-def accuracy_rows(cases, accuracies, baseline=False, triangulation="mesh", engines=("consensus",)):
-    """One row per case, engine and accuracy; with ``baseline`` also the run with ``eps_excess=inf``."""
+def accuracy_rows(cases, accuracies, baseline=False, engines=("consensus",)):
+    """One row per case (name, mesh, alpha_hat, reference, triangulation), engine and accuracy; with ``baseline``
+    also the run with ``eps_excess=inf``."""
     rows = []
-    for (name, mesh, alpha_hat, reference), engine in ((case, e) for case in cases for e in engines):
+    for (name, mesh, alpha_hat, reference, triangulation), engine in ((c, e) for c in cases for e in engines):
         solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation=triangulation,
                                     options=wrd.AllPairsOptions(engine=engine))
         for accuracy in accuracies:
@@ -247,25 +249,25 @@ def main():
             output = output.replace(".csv", "_exact.csv") if args.exact else output
             case = ((args.mesh, args.decimate, args.alpha_hat),)
             cases = list(larger_cases(args.cache, "intrinsic", case, exact=args.exact))
-            rows = accuracy_rows(cases, LARGER_ACCURACIES, triangulation="intrinsic", engines=engines)
+            rows = accuracy_rows(cases, LARGER_ACCURACIES, engines=engines)
             if args.exact:
-                rows.append(long_run_row(args.cache, *cases[0]))
+                rows.append(long_run_row(args.cache, *cases[0][:4]))
         else:
             output = ENGINES_RESULTS
             rows = accuracy_rows(exact_cases(None), LARGER_ACCURACIES, engines=engines)
-            rows += accuracy_rows(larger_cases(args.cache, "intrinsic"), LARGER_ACCURACIES, triangulation="intrinsic",
-                                  engines=engines) + engine_cost_rows()
+            rows += accuracy_rows(larger_cases(args.cache, "intrinsic"), LARGER_ACCURACIES, engines=engines) + engine_cost_rows()
         write_csv(rows, output)
         print(f"wrote {output}")
         return 0
     if args.accuracy or args.larger:
         sys.path.append(os.path.join(HERE, "..", "tests"))  # stopping.py's references (after benchmarks/)
         if args.accuracy:
-            write_csv(accuracy_rows(exact_cases(args.cache), ACCURACIES), ACCURACY_RESULTS)
+            write_csv(accuracy_rows(exact_cases(args.cache), ACCURACIES, engines=("eigenbasis", "consensus")),
+                      ACCURACY_RESULTS)
             print(f"wrote {ACCURACY_RESULTS}")
         if args.larger:
             rows = [row for t in args.triangulations
-                    for row in accuracy_rows(larger_cases(args.cache, t), LARGER_ACCURACIES, baseline=True, triangulation=t)]
+                    for row in accuracy_rows(larger_cases(args.cache, t), LARGER_ACCURACIES, baseline=True)]
             write_csv(rows, LARGER_RESULTS)
             print(f"wrote {LARGER_RESULTS}")
         return 0

@@ -93,11 +93,11 @@ def cases(cache, extra, only_extra):
     ``only_extra``), then the decimations ``extra`` ("MESH:VERTICES:ALPHA_HAT")."""
     parsed = tuple((p, int(v), float(a)) for p, v, a in (spec.rsplit(":", 2) for spec in extra))
     if not only_extra:
-        for name, mesh, alpha_hat, exact in bench.exact_cases(None):
-            yield name, mesh, alpha_hat, "mesh", exact
+        for name, mesh, alpha_hat, exact, triangulation in bench.exact_cases(None):
+            yield name, mesh, alpha_hat, triangulation, exact
         parsed = bench.LARGER + parsed
-    for name, mesh, alpha_hat, reference in bench.larger_cases(cache, "intrinsic", parsed):
-        yield name, mesh, alpha_hat, "intrinsic", reference
+    for name, mesh, alpha_hat, reference, triangulation in bench.larger_cases(cache, "intrinsic", parsed):
+        yield name, mesh, alpha_hat, triangulation, reference
 
 
 def rows_of(name, mesh, alpha_hat, engine, t):

@@ -140,7 +140,7 @@ def main():
     import warp as wp
     wp.config.quiet = True
     rows = []
-    for k, (name, mesh, alpha_hat, reference) in enumerate(bench.larger_cases(args.cache, "intrinsic")):
+    for k, (name, mesh, alpha_hat, reference, _) in enumerate(bench.larger_cases(args.cache, "intrinsic")):
         if k == 0:
             print(f"write-back check: {check_write_back(mesh, alpha_hat):.2e}", flush=True)
         solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation="intrinsic",

@@ -33,7 +33,6 @@ sys.path.insert(0, HERE)
 
 import stopping  # noqa: E402
 import symmetric_all_pairs  # noqa: E402
-import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 
 
@@ -125,7 +124,7 @@ def problems(cache, meshes=None):
         exact = stopping.cached(cache, f"pairs {name} {mesh.n_vertices} 0.03", None)
         if exact is not None:
             admm = symmetric_all_pairs.SymmetricADMM(mesh, 0.03)
-            yield name, mesh, exact, admm, BarrierPolish(admm, wrd.build_operators(mesh).element_volumes)
+            yield name, mesh, exact, admm, BarrierPolish(admm, admm.element_volumes)
 
 
 def main():

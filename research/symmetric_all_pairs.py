@@ -24,7 +24,7 @@ within 1%, 0.5% and 0.2% of max U* of the exact minimizer cached by benchmarks/s
 ``--u-step multigrid`` solves the U-step in O(n^2) work instead: PCG on the zero-diagonal
 symmetric matrices, warm-started from the previous U and stopped when the residual has
 dropped by ``--inner-tol``, preconditioned by a tensor-product V-cycle (:class:`TensorMultigrid`);
-the table then also counts the PCG iterations, beside the package's own run at accuracy 0.005
+the table then also counts the PCG iterations, beside the package's consensus engine at accuracy 0.005
 and 0.002 (its ADMM iterations, its one-sided PCG iterations summed over them, its error).
 
 ``--beside-package MESH`` compares on a shared mesh too large for an exact minimizer (cat_rr, 1,949
@@ -140,9 +140,10 @@ def masked_pcg(apply, precondition, R, U, inner_tol, max_iterations=100):
 
 
 class SymmetricADMM:
-    """The prototype on one mesh: eigenvectors and the diagonal's system set up once."""
+    """The prototype on one mesh's ``triangulation`` (default the intrinsic Delaunay one, the package's and the
+    exact references'): eigenvectors and the diagonal's system set up once."""
 
-    def __init__(self, mesh, alpha_hat, triangulation="mesh"):
+    def __init__(self, mesh, alpha_hat, triangulation="intrinsic"):
         ops = wrd.build_operators(mesh, triangulation)
         self.G = ops.grad.tocsr()
         self.D = (ops.grad.T @ sp.diags(np.repeat(ops.element_volumes, 3))).tocsr()
@@ -210,12 +211,14 @@ class SymmetricADMM:
 
 
 def package_rows(mesh, alpha_hat, exact):
-    """The package's AllPairsSolver at accuracy 0.005 and 0.002: iterations, PCG iterations, error (%)."""
+    """The package's consensus engine (one-sided PCG U-steps) at accuracy 0.005 and 0.002: iterations, PCG
+    iterations, error (%)."""
     out = {}
     for accuracy in (0.005, 0.002):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-            res = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1).solve(accuracy=accuracy)
+            res = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1,
+                                     options=wrd.AllPairsOptions(engine="consensus")).solve(accuracy=accuracy)
         out.update({f"package_{accuracy:g}_iterations": res.iterations, f"package_{accuracy:g}_pcg": res.cg_iterations,
                     f"package_{accuracy:g}_error_pct": stopping.error_pct(res.distance, exact)})
     return out
