@@ -122,6 +122,23 @@ def test_extrapolated_change_test_numbers():
     resumed.restore(saved)
     assert resumed.update(u + [[0.0], [6.0]], 150).tolist() == [True] and resumed.change[0] == 1.5
     assert ExtrapolatedChangeTest(50, math.inf, 1).settled[0]  # no change test: settled from the start
+    slower = ExtrapolatedChangeTest(50, 0.3, 1, rate_cap=0.975)  # the consensus engine's: at most 40 windows
+    for k, moved in ((50, 0.0), (100, 0.08), (5000, 0.16), (5050, 0.1601)):
+        slower.update(u + [[0.0], [moved]], k)
+    assert slower.window_change[0] == pytest.approx(1.25e-5) and slower.change[0] == pytest.approx(0.4)
+    assert not slower.settled[0]  # 0.01 x 40 windows; with 20 it would be 0.2
+
+
+def test_the_consensus_engine_counts_more_windows_to_come():
+    """Its PCG U-steps creep on obtuse meshes: its change test counts up to 40 windows, the eigenbasis
+    engine's (exact U-steps) 20."""
+    from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisADMM
+    from warp_regdist.solvers.all_pairs_run import PairsRun
+    from warp_regdist.solvers.all_pairs_state import SymmetricADMM
+
+    for state, windows in ((SymmetricADMM, 40), (EigenbasisADMM, 20)):
+        run = PairsRun(state, wrd.AllPairsOptions(), None, 0, None, None, None)
+        assert 1 / (1 - run.change_test.rate_cap) == pytest.approx(windows)
 
 
 @pytest.fixture(scope="module")

@@ -63,7 +63,8 @@ class PairsRun:
         self.last_penalties = None
         self.seconds_before = 0.0
         # U as one column: its change test (snapshot, the last window's change, the change to come)
-        self.change_test = ExtrapolatedChangeTest(options.change_window, options.eps_change, 1)
+        self.change_test = ExtrapolatedChangeTest(options.change_window, options.eps_change, 1,
+                                                  rate_cap=state.change_rate_cap)
         # stopping.gradient_excess of the U of the last change test (measured on the device); excess(U (n, n)):
         # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
