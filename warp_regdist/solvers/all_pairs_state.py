@@ -264,7 +264,7 @@ class SymmetricADMM(PairsState):
     """
 
     engine = "consensus"
-    # 40 windows: its PCG U-steps creep on obtuse meshes (like 1 / sqrt(k) on a decimated rocker arm), where
+    # 40 windows: its PCG U-steps creep on obtuse meshes (like k^-0.4 on a decimated rocker arm), where
     # 20 stopped 1.3% from the minimizer at accuracy 0.01 (docs/design/all-pairs.md)
     change_rate_cap = 0.975
 
