@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import warp_regdist as wrd
+from warp_regdist.solvers import all_pairs_admm
 from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep, diagonal_response
 
 DATA = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
@@ -81,6 +82,14 @@ def test_auto_takes_eigenbasis_on_small_meshes_on_the_cpu(bumpy42):
     solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu")
     assert solver.engine(solver.options) == "eigenbasis"
     assert solver.engine(solver.options.replace(engine="consensus")) == "consensus"
+
+
+def test_auto_takes_consensus_above_the_eigenbasis_bound(bumpy42, monkeypatch):
+    mesh, _ = bumpy42
+    assert all_pairs_admm.EIGENBASIS_MAX_VERTICES == 2000
+    monkeypatch.setattr(all_pairs_admm, "EIGENBASIS_MAX_VERTICES", mesh.n_vertices - 1)
+    solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu")
+    assert solver.engine(solver.options) == "consensus"
 
 
 def test_engine_must_be_named(bumpy42):
