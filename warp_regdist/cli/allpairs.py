@@ -69,7 +69,7 @@ def _allpairs_progress():
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import ConvergenceWarning, all_pairs
+    from .. import AllPairsOptions, AllPairsSolver, ConvergenceWarning
     from ..atomic_write import check_room
     from ..solvers.all_pairs_checkpoint import check_no_progress, checkpoint_bytes, checkpoint_room
 
@@ -90,11 +90,15 @@ def run(args: argparse.Namespace) -> int:
     check_room(planned)
     announce_compile(args.dtype, args.quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
-        result = all_pairs(mesh, args.alpha_hat, device=args.device, dtype=args.dtype,
-                           callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
-                           workers=args.workers, checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
-                           resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart,
-                           engine=args.engine)
+        solver = AllPairsSolver(mesh, args.alpha_hat, device=args.device, dtype=args.dtype, workers=args.workers,
+                                options=AllPairsOptions(engine=args.engine))
+        if not args.quiet:
+            print(f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
+                  f"{solver.memory_bytes / 1e9:.2f} GB; a progress line every {solver.options.change_window} "
+                  "iterations", file=sys.stderr, flush=True)
+        result = solver.solve(callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
+                              checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
+                              resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)
     saved = (f"; the solver state of iteration {result.checkpoint_iteration} is in {args.checkpoint} (continue with "
              f"--resume {args.checkpoint})" if result.get("checkpoint_iteration") is not None else "")
     if result.interrupted:
