@@ -74,8 +74,8 @@ __all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTIC
 EIGENBASIS_MAX_VERTICES = 2000
 """The largest mesh on which ``engine="auto"`` takes the eigenbasis engine (on the CPU). Its dense U-step
 costs O(n^3) an iteration against the consensus engine's O(n^2), but it converges where the consensus
-engine creeps: at 1,201 and 1,949 vertices it converged at accuracy 0.01 and the consensus engine did not
-(docs/design/all-pairs.md). Larger meshes were not measured with it."""
+engine creeps: at 1,201, 1,800 and 1,949 vertices it converged at accuracy 0.01 and the consensus engine
+did not (docs/design/all-pairs.md). Larger meshes were not measured with it."""
 
 OBTUSE_ANGLE = 120.0
 """An unconverged all-pairs result whose steepest triangle has an angle of this many degrees or more
