@@ -371,6 +371,15 @@ def test_the_library_prints_nothing_on_stdout(tmp_path):
     assert run.stdout == ""
 
 
+def test_allpairs_at_its_cap_without_a_checkpoint_says_how_a_rerun_could_continue(sphere_file, tmp_path, capsys):
+    code, out, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "U.npy", "--max-iterations", "3",
+                          "--device", "cpu")
+    assert code == 1 and err.splitlines()[-1] == ("warp-regdist: warning: the all-pairs ADMM did not converge in 3 "
+                                                  "iterations; the matrix written is approximate; with --checkpoint FILE "
+                                                  "a rerun could be continued by --resume FILE")
+    assert "NOT converged" in out and "error not yet estimated and gradient excess" in out
+
+
 def test_allpairs_progress_is_one_line_per_window_with_every_stop_test(sphere_file, tmp_path, capsys):
     code, _, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "U.npy", "--max-iterations", "160",
                         "--device", "cpu")

@@ -241,7 +241,13 @@ def test_cli_allpairs_checkpoint_and_resume(sphere642, tmp_path, capsys):
     assert main(["allpairs", str(off), "--output", str(out), "--checkpoint", str(ckpt), "--max-iterations", "6",
                  "--device", "cpu", "--quiet"]) == 1   # written, not converged
     err = capsys.readouterr().err
-    assert f"the solver state of iteration 6 is in {ckpt} (continue with --resume {ckpt})" in err
+    assert err == (f"warp-regdist: warning: the all-pairs ADMM did not converge in 6 iterations; the matrix written is "
+                   f"approximate; the solver state of iteration 6 is in {ckpt} (continue with --resume {ckpt} "
+                   "--max-iterations 12)\n")
+    assert main(["allpairs", str(off), "--output", str(out), "--resume", str(ckpt), "--max-iterations", "6",
+                 "--device", "cpu", "--quiet"]) == 2   # resumed at its cap: it would not move
+    assert capsys.readouterr().err == (f"warp-regdist: error: expected max_iterations above 6, the iteration of the "
+                                       f"checkpoint resumed ('{ckpt}'), got 6: the run would stop where it is\n")
     assert main(["allpairs", str(off), "--output", str(out), "--resume", str(ckpt), "--max-iterations", "15",
                  "--device", "cpu", "--quiet"]) == 1
     assert np.array_equal(np.load(out), whole.distance)

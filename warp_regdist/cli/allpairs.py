@@ -9,8 +9,8 @@ import tempfile
 
 import numpy as np
 
-from .common import (announce_compile, check_output, exit_status, load, repair_option, solver_options, subcommand,
-                     warn, warnings_to_stderr)
+from .common import (announce_compile, check_output, estimated_error, exit_status, load, repair_option,
+                     solver_options, subcommand, warn, warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -99,22 +99,35 @@ def run(args: argparse.Namespace) -> int:
         result = solver.solve(callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
                               checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
                               resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)
-    saved = (f"; the solver state of iteration {result.checkpoint_iteration} is in {args.checkpoint} (continue with "
-             f"--resume {args.checkpoint})" if result.get("checkpoint_iteration") is not None else "")
-    if result.interrupted:
-        warn(f"interrupted at ADMM iteration {result.iterations}: the matrix written is the current iterate{saved}")
-    elif not result.converged:
-        warn(f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is "
-             f"approximate{saved}")
+    if not result.converged:
+        warn(_unconverged(result, args))
     U = result.distance if mesh.input_index is None else result.distance[np.ix_(mesh.input_index, mesh.input_index)]
     write_matrix(args.output, U, args.checkpoint)
     if not args.quiet:
         print(f"{os.path.basename(args.mesh)}: {n} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations ({result.engine} engine), "
               f"{'converged' if result.converged else 'NOT converged'}, {result.seconds:.2f} s, "
-              f"{result.memory_bytes / 1e9:.2f} GB, estimated error {result.error_estimate:.2%} and gradient excess "
+              f"{result.memory_bytes / 1e9:.2f} GB, {estimated_error(result.error_estimate)} and gradient excess "
               f"{result.gradient_excess:.2%} of the largest distance {result.distance.max():.4g}. Wrote {args.output}.")
     return exit_status(result)
+
+
+def _unconverged(result, args) -> str:
+    """The warning for an unconverged ``result``: why it stopped and the command that continues it."""
+    at_cap = not result.interrupted and result.iterations >= args.max_iterations
+    if result.interrupted:
+        what = f"interrupted at ADMM iteration {result.iterations}: the matrix written is the current iterate"
+    elif at_cap:
+        what = f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is approximate"
+    else:
+        return (f"the all-pairs ADMM stopped at iteration {result.iterations} with |grad U| above unit speed (gradient "
+                f"excess {result.gradient_excess:.2%}): the matrix written is approximate; a smaller --accuracy "
+                "iterates longer")
+    if result.get("checkpoint_iteration") is None:
+        return what + ("; with --checkpoint FILE a rerun could be continued by --resume FILE" if at_cap else "")
+    more = f" --max-iterations {2 * result.iterations}" if at_cap else ""
+    return (f"{what}; the solver state of iteration {result.checkpoint_iteration} is in {args.checkpoint} (continue "
+            f"with --resume {args.checkpoint}{more})")
 
 
 def write_matrix(path: str, U: np.ndarray, checkpoint: str | None) -> None:

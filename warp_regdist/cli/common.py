@@ -271,6 +271,11 @@ def file_values(mesh, values: np.ndarray) -> np.ndarray:
     return values if mesh.input_index is None else values[mesh.input_index]
 
 
+def estimated_error(estimate: float) -> str:
+    """``estimate`` (a fraction of the largest distance) for a summary line; inf before the first estimate."""
+    return f"estimated error {estimate:.2%}" if np.isfinite(estimate) else "error not yet estimated"
+
+
 def summary(name: str, mesh, described: str, solver, result, written: list[str]) -> str:
     status = "converged" if result.converged else "NOT converged"
     elements = "faces" if mesh.element_dim == 2 else "tetrahedra"
@@ -278,7 +283,7 @@ def summary(name: str, mesh, described: str, solver, result, written: list[str])
     if mesh.element_weights is not None:
         vertices, elements = "points", "local triangles"
     accuracy = (f"polished: moved {result.polish_change:.2%}" if "polish_change" in result
-                else f"estimated error {result.error_estimate:.2%}")
+                else estimated_error(result.error_estimate))
     return (
         f"{name}: {mesh.n_vertices} {vertices}, {mesh.n_elements} {elements}. Regularized geodesic "
         f"distance from {described}, {solver.regularizer.name} regularizer, alpha_hat {solver.alpha_hat:g} "

@@ -235,9 +235,10 @@ class AllPairsSolver:
         ------
         ValueError
             Bad arguments, a footprint above the available memory or a checkpoint above the free
-            disk space (the message gives both), a resume or initial file of another problem, or one
+            disk space (the message gives both), a resume or initial file of another problem or one
             that is not a complete checkpoint (truncated, foreign, arrays of other shapes or dtypes,
-            a CRC-32 that does not match; read as data, never unpickled).
+            a CRC-32 that does not match; read as data, never unpickled), and a resume file of an
+            unconverged run already at ``max_iterations`` (raise it to continue).
         """
         t0 = time.perf_counter()
         mesh, dtype = self.mesh, self.dtype
@@ -273,6 +274,10 @@ class AllPairsSolver:
             memory = check_memory(mesh.n_vertices, mesh.n_elements, dtype, self.device, engine)
             if saved is not None and "final" in saved:
                 return self._flag_steep(final_result(saved, memory, checkpoint), run_options)
+            if saved is not None and int(saved["iteration"]) >= run_options.max_iterations:
+                raise ValueError(f"expected max_iterations above {int(saved['iteration'])}, the iteration of the "
+                                 f"checkpoint resumed ({os.fspath(resume)!r}), got {run_options.max_iterations}: "
+                                 "the run would stop where it is")
             state = stack.enter_context(contextlib.closing(
                 EigenbasisADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self.u_step)
                 if engine == "eigenbasis" else
