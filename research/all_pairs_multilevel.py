@@ -12,7 +12,8 @@ the fine run:
 
 - ``cold``: the package's engine from zero;
 - ``warm``: from U_0, the penalty schedule from its start (2 L doubling every 100 iterations to 32 L);
-- ``warm_high``: from U_0 at rho = 32 L throughout (the schedule's end).
+- ``warm_high``: from U_0 at rho = 32 L throughout (the schedule's end);
+- ``cold_high``: from zero at rho = 32 L throughout (the control of ``warm_high``).
 
 Runs ``AllPairsSolver(engine="eigenbasis").solve(accuracy=...)`` with the run's start replaced, on
 decimations of the shared meshes against their 5,000-iteration references in ``--cache`` (the ones
@@ -41,7 +42,7 @@ from warp_regdist.solvers.admm import PenaltySchedule  # noqa: E402
 from warp_regdist.solvers.all_pairs_run import PairsRun  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs_multilevel.csv")
-VARIANTS = ("cold", "warm", "warm_high")
+VARIANTS = ("cold", "cold_high", "warm", "warm_high")
 CASES = ("cat_rr 500 0.03", "spot_rr_holes 302 0.03", "spot_rr 400 0.03", "bent_pipe_closed_lr 350 0.03",
          "cat_rr 350 0.1")
 
@@ -100,9 +101,10 @@ class StartedRun(PairsRun):
 MARKS = (10, 50, 200)
 
 
-def solve(mesh, alpha_hat, accuracy, U0=None, schedule=None, reference=None):
+def solve(mesh, alpha_hat, accuracy, dtype, U0=None, schedule=None, reference=None):
     options = wrd.AllPairsOptions(engine="eigenbasis", schedule=schedule)
-    solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation="intrinsic", options=options)
+    solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", dtype=dtype, workers=1, triangulation="intrinsic",
+                                options=options)
     StartedRun.U0, StartedRun.reference, StartedRun.errors = U0, reference, {}
     all_pairs_admm.PairsRun = StartedRun
     try:
@@ -111,11 +113,11 @@ def solve(mesh, alpha_hat, accuracy, U0=None, schedule=None, reference=None):
         all_pairs_admm.PairsRun = PairsRun
 
 
-def coarse_start(mesh, name, alpha_hat, accuracy, ratio):
+def coarse_start(mesh, path, alpha_hat, accuracy, dtype, ratio):
     """The coarse solve carried to ``mesh``: (U_0, coarse vertices, its iterations, seconds)."""
-    coarse = stopping.decimated(name, round(mesh.n_vertices / ratio))
+    coarse = stopping.decimated(path, round(mesh.n_vertices / ratio))
     t0 = time.perf_counter()
-    res, _ = solve(coarse, alpha_hat, accuracy)
+    res, _ = solve(coarse, alpha_hat, accuracy, dtype)
     P = prolongation(mesh, coarse)
     U0 = P @ res.distance @ P.T
     U0 = 0.5 * (U0 + U0.T)
@@ -126,9 +128,10 @@ def coarse_start(mesh, name, alpha_hat, accuracy, ratio):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="folder of the 5,000-iteration references")
-    ap.add_argument("--cases", nargs="+", default=list(CASES), help="'mesh vertices alpha_hat'")
+    ap.add_argument("--cases", nargs="+", default=list(CASES), help="'mesh vertices alpha_hat' (a shared mesh or a file)")
     ap.add_argument("--coarse", type=float, nargs="+", default=[4.0], help="fine / coarse vertex ratio")
     ap.add_argument("--accuracy", type=float, default=0.01)
+    ap.add_argument("--dtype", default="float64", choices=("float64", "float32"))
     ap.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS))
     ap.add_argument("--out", default=RESULTS)
     args = ap.parse_args()
@@ -136,18 +139,21 @@ def main():
     wp.config.quiet = True
     cases = [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases]
     rows = []
-    for name, mesh, alpha_hat, reference, _ in bench.larger_cases(args.cache, "intrinsic", cases):
+    for (path, _, _), (name, mesh, alpha_hat, reference, _) in zip(cases, bench.larger_cases(args.cache, "intrinsic",
+                                                                                                cases)):
         L = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", workers=1, triangulation="intrinsic").operators.length_scale
-        runs = [("cold", "")] + [(v, r) for r in args.coarse for v in args.variants if v != "cold"]
-        for variant, ratio in (runs if "cold" in args.variants else runs[1:]):
+        runs = [(v, "") for v in args.variants if v.startswith("cold")]
+        runs += [(v, r) for r in args.coarse for v in args.variants if v.startswith("warm")]
+        for variant, ratio in runs:
             U0, extra = None, {}
-            if variant != "cold":
-                U0, nc, itc, secc = coarse_start(mesh, name.split()[0], alpha_hat, args.accuracy, ratio)
+            if variant.startswith("warm"):
+                U0, nc, itc, secc = coarse_start(mesh, path, alpha_hat, args.accuracy, args.dtype, ratio)
                 extra = dict(coarse_n=nc, coarse_iterations=itc, coarse_s=round(secc, 1),
                              start_error_pct=round(100 * float(np.abs(U0 - reference).max() / reference.max()), 2))
-            schedule = PenaltySchedule(32.0, 32.0, float("inf"), L) if variant == "warm_high" else None
-            res, errors = solve(mesh, alpha_hat, args.accuracy, U0, schedule, reference)
-            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, ratio=ratio, variant=variant,
+            schedule = PenaltySchedule(32.0, 32.0, float("inf"), L) if variant.endswith("_high") else None
+            res, errors = solve(mesh, alpha_hat, args.accuracy, args.dtype, U0, schedule, reference)
+            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, dtype=args.dtype, accuracy=args.accuracy,
+                       ratio=ratio, variant=variant,
                        **{f"error_{k}_pct": round(100 * errors.get(k, np.nan), 2) for k in MARKS},
                        **bench._run_columns(res, reference), seconds=round(res.seconds + extra.get("coarse_s", 0.0), 1),
                        **extra)
