@@ -380,6 +380,18 @@ def test_allpairs_at_its_cap_without_a_checkpoint_says_how_a_rerun_could_continu
     assert "NOT converged" in out and "error not yet estimated and gradient excess" in out
 
 
+def test_allpairs_flagged_steep_before_its_cap_is_not_sent_to_resume():
+    from argparse import Namespace
+
+    from warp_regdist.cli.allpairs import _unconverged
+
+    steep = wrd.AllPairsResult(iterations=450, converged=False, interrupted=False, gradient_excess=0.012,
+                               checkpoint_iteration=450)
+    assert _unconverged(steep, Namespace(max_iterations=3000, checkpoint="run.npz")) == (
+        "the all-pairs ADMM stopped at iteration 450 with |grad U| above unit speed (gradient excess 1.20%): the matrix "
+        "written is approximate; a smaller --accuracy iterates longer")
+
+
 def test_allpairs_progress_is_one_line_per_window_with_every_stop_test(sphere_file, tmp_path, capsys):
     code, _, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "U.npy", "--max-iterations", "160",
                         "--device", "cpu")
