@@ -43,8 +43,6 @@ from warp_regdist.solvers.all_pairs_run import PairsRun  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs_multilevel.csv")
 VARIANTS = ("cold", "cold_high", "warm", "warm_high")
-CASES = ("cat_rr 500 0.03", "spot_rr_holes 302 0.03", "spot_rr 400 0.03", "bent_pipe_closed_lr 350 0.03",
-         "cat_rr 350 0.1")
 
 
 def prolongation(fine, coarse, k=8):
@@ -56,13 +54,13 @@ def prolongation(fine, coarse, k=8):
     V, F, X = coarse.vertices, coarse.elements, fine.vertices
     _, near = cKDTree(V).query(X, k=k)
     ring = sp.csr_matrix((np.ones(F.size), (F.ravel(), np.repeat(np.arange(len(F)), 3))), shape=(len(V), len(F)))
-    best, point, face = np.full(len(X), np.inf), np.zeros_like(X), np.zeros(len(X), dtype=np.int64)
+    point, face = np.zeros_like(X), np.zeros(len(X), dtype=np.int64)
     for i in range(len(X)):
         cand = np.unique(ring[near[i]].indices)
         q = trimesh.triangles.closest_point(V[F[cand]], np.repeat(X[i:i + 1], len(cand), axis=0))
         d = np.linalg.norm(q - X[i], axis=1)
         j = int(np.argmin(d))
-        best[i], point[i], face[i] = d[j], q[j], cand[j]
+        point[i], face[i] = q[j], cand[j]
     bary = np.clip(trimesh.triangles.points_to_barycentric(V[F[face]], point), 0, None)
     bary /= bary.sum(axis=1, keepdims=True)
     rows = np.repeat(np.arange(len(X)), 3)
@@ -128,7 +126,8 @@ def coarse_start(mesh, path, alpha_hat, accuracy, dtype, ratio):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", required=True, help="folder of the 5,000-iteration references")
-    ap.add_argument("--cases", nargs="+", default=list(CASES), help="'mesh vertices alpha_hat' (a shared mesh or a file)")
+    ap.add_argument("--cases", nargs="+", default=None,
+                    help="'mesh vertices alpha_hat' (a shared mesh or a file); default: benchmarks/all_pairs.py LARGER")
     ap.add_argument("--coarse", type=float, nargs="+", default=[4.0], help="fine / coarse vertex ratio")
     ap.add_argument("--accuracy", type=float, default=0.01)
     ap.add_argument("--dtype", default="float64", choices=("float64", "float32"))
@@ -137,7 +136,8 @@ def main():
     args = ap.parse_args()
     import warp as wp
     wp.config.quiet = True
-    cases = [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases]
+    cases = (bench.LARGER if args.cases is None
+             else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
     rows = []
     for (path, _, _), (name, mesh, alpha_hat, reference, _) in zip(cases, bench.larger_cases(args.cache, "intrinsic",
                                                                                                 cases)):
