@@ -1,0 +1,142 @@
+"""How far the eigenbasis engine's stop is from the first iterate within the accuracy (issue 41, a measurement).
+
+    python research/all_pairs_tail.py --cache /tmp/stopping
+    python research/all_pairs_tail.py --cache /tmp/stopping --cases '/tmp/corpus/os_bunny.obj 1200 0.03' --dtype float32
+    python research/all_pairs_tail.py --cache /tmp/stopping --polish-at 600 --cases 'spot_rr_holes 302 0.03'
+
+Runs ``AllPairsSolver(engine="eigenbasis").solve(accuracy=...)`` on decimations of the shared meshes against
+their 5,000-iteration references in ``--cache`` (those of benchmarks/all_pairs.py; default its ``LARGER``) and,
+every 50 iterations, measures the iterate's error against the reference in % of max U: the max, the 99.9th
+percentile over the n^2 entries and the number of rows holding an entry above half the max. Reports the
+rule's stop and error, and the first iteration from which each error stays below 1% and 0.5% (an oracle
+stop, which no rule can make without the reference). With ``--polish-at K``: at iteration K the row with the
+largest error is re-solved exactly with every other entry fixed (block coordinate descent: its column's
+constraints, and each other column's constraints on the elements around its vertex, whose bounds are
+raised to the iterate's own where it exceeds 1; cvxpy + Clarabel), and the error before and after is
+printed. Writes benchmarks/results/all_pairs_tail.csv and prints a table.
+"""
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks")
+sys.path.insert(0, HERE)
+
+import all_pairs as bench  # noqa: E402
+import warp_regdist as wrd  # noqa: E402
+from report import markdown_table, write_csv  # noqa: E402
+from warp_regdist.solvers import all_pairs_admm  # noqa: E402
+from warp_regdist.solvers.all_pairs_run import PairsRun  # noqa: E402
+
+RESULTS = os.path.join(HERE, "results", "all_pairs_tail.csv")
+EVERY = 50
+LEVELS = (0.01, 0.005)
+
+
+class RecordedRun(PairsRun):
+    """PairsRun that records, every ``EVERY`` iterations, the iterate's error against ``reference`` and, at
+    ``polish_at``, keeps the iterate."""
+
+    reference = polish_at = kept = None
+    log = []
+
+    def status(self, it):
+        if it % EVERY == 0 and RecordedRun.reference is not None:
+            U, ref = self.state.distance(), RecordedRun.reference
+            E = np.abs(U - ref) / ref.max()
+            worst = float(E.max())
+            RecordedRun.log.append(dict(it=it, max=worst, q999=float(np.quantile(E, 0.999)),
+                                        rows=int(((E > 0.5 * worst).any(axis=1)).sum())))
+            if it == RecordedRun.polish_at:
+                RecordedRun.kept = U
+        return super().status(it)
+
+
+def stays_below(log, key, level):
+    """The first recorded iteration from which ``key`` stays below ``level`` (None: never)."""
+    for r in log:
+        if all(s[key] < level for s in log if s["it"] >= r["it"]):
+            return r["it"]
+    return None
+
+
+def polish_row(U, i, ops, alpha):
+    """U with row and column ``i`` replaced by the exact minimizer of the all-pairs objective
+    f(U) = alpha sum_j a_j u_j^T W u_j - a^T U a over them, every other entry fixed."""
+    import cvxpy as cp
+
+    n, m = U.shape[0], len(ops.elements)
+    G, W, a = ops.grad.tocsr(), ops.stiffness.tocsr(), ops.vertex_volumes
+    rest = U.copy()
+    rest[i, :] = 0.0
+    w_i = W[i].toarray().ravel()
+    x = cp.Variable(n)
+    objective = (alpha * a[i] * cp.quad_form(x, W) + alpha * cp.sum(cp.multiply(a * w_i[i], cp.square(x)))
+                 + 2 * alpha * cp.sum(cp.multiply(a * (w_i @ rest), x)) - 2 * a[i] * (a @ x))
+    own = np.maximum(1.0, np.linalg.norm((G @ U[:, i]).reshape(m, 3), axis=1))
+    constraints = [x[i] == 0, x >= 0, cp.norm(cp.reshape(G @ x, (m, 3), order="C"), 2, axis=1) <= own]
+    for e in np.flatnonzero((ops.elements == i).any(axis=1)):
+        G_e = G[3 * e:3 * e + 3].toarray()
+        bound = np.maximum(1.0, np.linalg.norm(G_e @ U, axis=0))
+        others = G_e @ rest + cp.reshape(G_e[:, i], (3, 1), order="C") @ cp.reshape(x, (1, n), order="C")
+        constraints.append(cp.norm(others, 2, axis=0) <= bound)
+    cp.Problem(cp.Minimize(objective), constraints).solve(solver=cp.CLARABEL)
+    V = U.copy()
+    V[i, :] = V[:, i] = x.value
+    V[i, i] = 0.0
+    return V
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", required=True, help="folder of the 5,000-iteration references")
+    ap.add_argument("--cases", nargs="+", default=None,
+                    help="'mesh vertices alpha_hat' (a shared mesh or a file); default: benchmarks/all_pairs.py LARGER")
+    ap.add_argument("--accuracies", type=float, nargs="+", default=[0.01, 0.005])
+    ap.add_argument("--dtype", default="float64", choices=("float64", "float32"))
+    ap.add_argument("--polish-at", type=int, default=None, metavar="K")
+    ap.add_argument("--out", default=RESULTS)
+    args = ap.parse_args()
+    import warp as wp
+    wp.config.quiet = True
+    cases = (bench.LARGER if args.cases is None
+             else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
+    rows = []
+    all_pairs_admm.PairsRun = RecordedRun
+    for name, mesh, alpha_hat, reference, _ in bench.larger_cases(args.cache, "intrinsic", cases):
+        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", dtype=args.dtype, workers=1,
+                                    triangulation="intrinsic", options=wrd.AllPairsOptions(engine="eigenbasis"))
+        for accuracy in args.accuracies:
+            RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
+            res = solver.solve(accuracy=accuracy)
+            log = RecordedRun.log
+            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, dtype=args.dtype, accuracy=accuracy,
+                       **bench._run_columns(res, reference))
+            for level in LEVELS:
+                row[f"max_below_{level}"] = stays_below(log, "max", level)
+                row[f"q999_below_{level}"] = stays_below(log, "q999", level)
+            row["rows_at_half_max"] = log[-1]["rows"] if log else None
+            rows.append(row)
+            print(row, flush=True)
+            write_csv(rows, args.out)
+            if RecordedRun.kept is not None:
+                U = RecordedRun.kept
+                E = np.abs(U - reference) / reference.max()
+                i = int(np.unravel_index(np.argmax(E), E.shape)[0])
+                alpha = alpha_hat * solver.operators.length_scale
+                V = polish_row(U, i, solver.operators, alpha)
+                print(f"polish at iteration {args.polish_at}, row {i}: max error {100 * E.max():.3f}% -> "
+                      f"{100 * np.abs(V - reference).max() / reference.max():.3f}%, the row's "
+                      f"{100 * E[i].max():.3f}% -> {100 * np.abs(V[i] - reference[i]).max() / reference.max():.3f}%",
+                      flush=True)
+                RecordedRun.kept = None
+    all_pairs_admm.PairsRun = PairsRun
+    print(markdown_table(rows))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
