@@ -3,6 +3,7 @@
     python research/all_pairs_tail.py --cache /tmp/stopping
     python research/all_pairs_tail.py --cache /tmp/stopping --cases '/tmp/corpus/os_bunny.obj 1200 0.03' --dtype float32
     python research/all_pairs_tail.py --cache /tmp/stopping --polish-at 600 --cases 'spot_rr_holes 302 0.03'
+    python research/all_pairs_tail.py --mesh cat_rr --reference U.npy --dtype float32 --max-iterations 1500
 
 Runs ``AllPairsSolver(engine="eigenbasis").solve(accuracy=...)`` on decimations of the shared meshes against
 their 5,000-iteration references in ``--cache`` (those of benchmarks/all_pairs.py; default its ``LARGER``) and,
@@ -13,7 +14,8 @@ stop, which no rule can make without the reference). With ``--polish-at K``: at 
 largest error is re-solved exactly with every other entry fixed (block coordinate descent: its column's
 constraints, and each other column's constraints on the elements around its vertex, whose bounds are
 raised to the iterate's own where it exceeds 1; cvxpy + Clarabel), and the error before and after is
-printed. Writes benchmarks/results/all_pairs_tail.csv and prints a table.
+printed. With ``--mesh NAME --reference FILE``: that mesh as it is (a shared mesh or a file) against the matrix
+in FILE (a longer run of the same problem). Writes benchmarks/results/all_pairs_tail.csv and prints a table.
 """
 
 import argparse
@@ -92,7 +94,11 @@ def polish_row(U, i, ops, alpha):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", required=True, help="folder of the 5,000-iteration references")
+    ap.add_argument("--cache", help="folder of the 5,000-iteration references")
+    ap.add_argument("--mesh", help="a shared mesh or a mesh file, solved as it is against --reference")
+    ap.add_argument("--reference", help="the matrix (.npy) that --mesh is measured against")
+    ap.add_argument("--alpha-hat", type=float, default=0.03)
+    ap.add_argument("--max-iterations", type=int, default=3000)
     ap.add_argument("--cases", nargs="+", default=None,
                     help="'mesh vertices alpha_hat' (a shared mesh or a file); default: benchmarks/all_pairs.py LARGER")
     ap.add_argument("--accuracies", type=float, nargs="+", default=[0.01, 0.005])
@@ -102,13 +108,21 @@ def main():
     args = ap.parse_args()
     import warp as wp
     wp.config.quiet = True
-    cases = (bench.LARGER if args.cases is None
-             else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
+    if args.mesh is not None:
+        import meshes
+
+        name = os.path.splitext(os.path.basename(args.mesh))[0]
+        solved = [(name, meshes.shared_mesh(args.mesh), args.alpha_hat, np.load(args.reference), "intrinsic")]
+    else:
+        cases = (bench.LARGER if args.cases is None
+                 else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
+        solved = bench.larger_cases(args.cache, "intrinsic", cases)
     rows = []
     all_pairs_admm.PairsRun = RecordedRun
-    for name, mesh, alpha_hat, reference, _ in bench.larger_cases(args.cache, "intrinsic", cases):
+    for name, mesh, alpha_hat, reference, _ in solved:
         solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", dtype=args.dtype, workers=1,
-                                    triangulation="intrinsic", options=wrd.AllPairsOptions(engine="eigenbasis"))
+                                    triangulation="intrinsic", options=wrd.AllPairsOptions(engine="eigenbasis",
+                                                                                max_iterations=args.max_iterations))
         for accuracy in args.accuracies:
             RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
             res = solver.solve(accuracy=accuracy)
