@@ -52,9 +52,12 @@ class RecordedRun(PairsRun):
             worst = float(E.max())
             RecordedRun.log.append(dict(it=it, max=worst, q999=float(np.quantile(E, 0.999)),
                                         rows=int(((E > 0.5 * worst).any(axis=1)).sum())))
+        done = super().status(it)
+        if it % EVERY == 0 and RecordedRun.reference is not None:
+            RecordedRun.log[-1]["estimate"] = float(self.change_test.change[0])
             if it == RecordedRun.polish_at:
                 RecordedRun.kept = U
-        return super().status(it)
+        return done
 
 
 def stays_below(log, key, level):
@@ -132,6 +135,8 @@ def main():
             for level in LEVELS:
                 row[f"max_below_{level}"] = stays_below(log, "max", level)
                 row[f"q999_below_{level}"] = stays_below(log, "q999", level)
+            at = {r["it"]: r for r in log}.get(row["max_below_0.01"])
+            row["estimate_at_1pct"] = round(100 * at["estimate"], 3) if at else None
             row["rows_at_half_max"] = log[-1]["rows"] if log else None
             rows.append(row)
             print(row, flush=True)
