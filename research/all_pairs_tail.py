@@ -107,6 +107,7 @@ def main():
     ap.add_argument("--accuracies", type=float, nargs="+", default=[0.01, 0.005])
     ap.add_argument("--dtype", default="float64", choices=("float64", "float32"))
     ap.add_argument("--polish-at", type=int, default=None, metavar="K")
+    ap.add_argument("--trace", action="store_true", help="print the errors and the estimate every 100 iterations")
     ap.add_argument("--out", default=RESULTS)
     args = ap.parse_args()
     import warp as wp
@@ -130,6 +131,10 @@ def main():
             RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
             res = solver.solve(accuracy=accuracy)
             log = RecordedRun.log
+            for r in log if args.trace else ():
+                if r["it"] % 100 == 0:
+                    print(f"  iteration {r['it']}: max {100 * r['max']:.3f}%, 99.9th percentile {100 * r['q999']:.3f}%, "
+                          f"estimate {100 * r.get('estimate', np.inf):.3f}%", flush=True)
             row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, dtype=args.dtype, accuracy=accuracy,
                        **bench._run_columns(res, reference))
             for level in LEVELS:
