@@ -95,6 +95,36 @@ def polish_row(U, i, ops, alpha):
     return V
 
 
+def measure(solver, name, reference, accuracy, args):
+    """One run at ``accuracy``: its row (stop, error, the iterations from which each error stays within
+    ``LEVELS``, the estimate then); prints the trace and the polish where asked."""
+    RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
+    res = solver.solve(accuracy=accuracy)
+    log = RecordedRun.log
+    for r in log if args.trace else ():
+        if r["it"] % 100 == 0:
+            print(f"  iteration {r['it']}: max {100 * r['max']:.3f}%, 99.9th percentile {100 * r['q999']:.3f}%, "
+                  f"estimate {100 * r.get('estimate', np.inf):.3f}%", flush=True)
+    row = dict(mesh=name, n=solver.mesh.n_vertices, alpha_hat=solver.alpha_hat, dtype=args.dtype, accuracy=accuracy,
+               **bench._run_columns(res, reference))
+    for level in LEVELS:
+        row[f"max_below_{level}"] = stays_below(log, "max", level)
+        row[f"q999_below_{level}"] = stays_below(log, "q999", level)
+    at = {r["it"]: r for r in log}.get(row["max_below_0.01"])
+    row["estimate_at_1pct"] = round(100 * at["estimate"], 3) if at else None
+    row["rows_at_half_max"] = log[-1]["rows"] if log else None
+    if RecordedRun.kept is not None:
+        U, RecordedRun.kept = RecordedRun.kept, None
+        top = reference.max()
+        E = np.abs(U - reference) / top
+        i = int(np.unravel_index(np.argmax(E), E.shape)[0])
+        V = polish_row(U, i, solver.operators, solver.alpha_hat * solver.operators.length_scale)
+        after = np.abs(V - reference) / top
+        print(f"polish at iteration {args.polish_at}, row {i}: max error {100 * E.max():.3f}% -> "
+              f"{100 * after.max():.3f}%, the row's {100 * E[i].max():.3f}% -> {100 * after[i].max():.3f}%", flush=True)
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", help="folder of the 5,000-iteration references")
@@ -123,41 +153,17 @@ def main():
         solved = bench.larger_cases(args.cache, "intrinsic", cases)
     rows = []
     all_pairs_admm.PairsRun = RecordedRun
-    for name, mesh, alpha_hat, reference, _ in solved:
-        solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", dtype=args.dtype, workers=1,
-                                    triangulation="intrinsic", options=wrd.AllPairsOptions(engine="eigenbasis",
-                                                                                max_iterations=args.max_iterations))
-        for accuracy in args.accuracies:
-            RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
-            res = solver.solve(accuracy=accuracy)
-            log = RecordedRun.log
-            for r in log if args.trace else ():
-                if r["it"] % 100 == 0:
-                    print(f"  iteration {r['it']}: max {100 * r['max']:.3f}%, 99.9th percentile {100 * r['q999']:.3f}%, "
-                          f"estimate {100 * r.get('estimate', np.inf):.3f}%", flush=True)
-            row = dict(mesh=name, n=mesh.n_vertices, alpha_hat=alpha_hat, dtype=args.dtype, accuracy=accuracy,
-                       **bench._run_columns(res, reference))
-            for level in LEVELS:
-                row[f"max_below_{level}"] = stays_below(log, "max", level)
-                row[f"q999_below_{level}"] = stays_below(log, "q999", level)
-            at = {r["it"]: r for r in log}.get(row["max_below_0.01"])
-            row["estimate_at_1pct"] = round(100 * at["estimate"], 3) if at else None
-            row["rows_at_half_max"] = log[-1]["rows"] if log else None
-            rows.append(row)
-            print(row, flush=True)
-            write_csv(rows, args.out)
-            if RecordedRun.kept is not None:
-                U = RecordedRun.kept
-                E = np.abs(U - reference) / reference.max()
-                i = int(np.unravel_index(np.argmax(E), E.shape)[0])
-                alpha = alpha_hat * solver.operators.length_scale
-                V = polish_row(U, i, solver.operators, alpha)
-                print(f"polish at iteration {args.polish_at}, row {i}: max error {100 * E.max():.3f}% -> "
-                      f"{100 * np.abs(V - reference).max() / reference.max():.3f}%, the row's "
-                      f"{100 * E[i].max():.3f}% -> {100 * np.abs(V[i] - reference[i]).max() / reference.max():.3f}%",
-                      flush=True)
-                RecordedRun.kept = None
-    all_pairs_admm.PairsRun = PairsRun
+    try:
+        for name, mesh, alpha_hat, reference, _ in solved:
+            options = wrd.AllPairsOptions(engine="eigenbasis", max_iterations=args.max_iterations)
+            solver = wrd.AllPairsSolver(mesh, alpha_hat, device="cpu", dtype=args.dtype, workers=1,
+                                        triangulation="intrinsic", options=options)
+            for accuracy in args.accuracies:
+                rows.append(measure(solver, name, reference, accuracy, args))
+                print(rows[-1], flush=True)
+                write_csv(rows, args.out)
+    finally:
+        all_pairs_admm.PairsRun = PairsRun
     print(markdown_table(rows))
     print(f"wrote {args.out}")
 
