@@ -139,6 +139,13 @@ def exact_reference(cache, name, mesh, alpha_hat):
                            lambda: stopping.exact_pairs(apr, V, F, alpha))
 
 
+def parse_cases(strings):
+    """(path, vertices, alpha_hat) of each 'mesh vertices alpha_hat' in ``strings``; ``LARGER`` for None."""
+    if strings is None:
+        return LARGER
+    return [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in strings]
+
+
 def larger_cases(cache, triangulation="mesh", cases=LARGER, exact=False):
     """Yield (name, mesh, alpha_hat, reference, triangulation) of ``cases`` (default ``LARGER``), each
     reference (the long run's, or with ``exact`` the exact minimizer on the intrinsic operators) computed once

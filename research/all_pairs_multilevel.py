@@ -136,8 +136,7 @@ def main():
     args = ap.parse_args()
     import warp as wp
     wp.config.quiet = True
-    cases = (bench.LARGER if args.cases is None
-             else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
+    cases = bench.parse_cases(args.cases)
     rows = []
     for (path, _, _), (name, mesh, alpha_hat, reference, _) in zip(cases, bench.larger_cases(args.cache, "intrinsic",
                                                                                                 cases)):

@@ -140,6 +140,8 @@ def main():
     ap.add_argument("--trace", action="store_true", help="print the errors and the estimate every 100 iterations")
     ap.add_argument("--out", default=RESULTS)
     args = ap.parse_args()
+    if (args.mesh is None) == (args.cache is None) or (args.mesh is None) != (args.reference is None):
+        ap.error("expected --cache, or --mesh with --reference")
     import warp as wp
     wp.config.quiet = True
     if args.mesh is not None:
@@ -148,8 +150,7 @@ def main():
         name = os.path.splitext(os.path.basename(args.mesh))[0]
         solved = [(name, meshes.shared_mesh(args.mesh), args.alpha_hat, np.load(args.reference), "intrinsic")]
     else:
-        cases = (bench.LARGER if args.cases is None
-                 else [(c.split()[0], int(c.split()[1]), float(c.split()[2])) for c in args.cases])
+        cases = bench.parse_cases(args.cases)
         solved = bench.larger_cases(args.cache, "intrinsic", cases)
     rows = []
     all_pairs_admm.PairsRun = RecordedRun
