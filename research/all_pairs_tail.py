@@ -10,7 +10,9 @@ their 5,000-iteration references in ``--cache`` (those of benchmarks/all_pairs.p
 every 50 iterations, measures the iterate's error against the reference in % of max U: the max, the 99.9th
 percentile over the n^2 entries and the number of rows holding an entry above half the max. Reports the
 rule's stop and error, and the first iteration from which each error stays below 1% and 0.5% (an oracle
-stop, which no rule can make without the reference). With ``--polish-at K``: at iteration K the row with the
+stop, which no rule can make without the reference). Also an estimate that extrapolates in log time
+(:func:`log_time_rest`, from the iterates at k / 4, k / 2 and k) and where it would stop: its first check
+at or below ``eps_change`` = 0.7 e, and the error then (empty: not before the run's stop). With ``--polish-at K``: at iteration K the row with the
 largest error is re-solved exactly with every other entry fixed (block coordinate descent: its column's
 constraints, and each other column's constraints on the elements around its vertex, whose bounds are
 raised to the iterate's own where it exceeds 1; cvxpy + Clarabel), and the error before and after is
@@ -38,12 +40,31 @@ EVERY = 50
 LEVELS = (0.01, 0.005)
 
 
+def log_time_rest(k, a, b, d1, d2):
+    """The rest of a power law e_k = C k^(-p) fitted to the changes d1 = |U_k - U_a| and d2 = |U_a - U_b|
+    (b < a < k): p solves d2 / d1 = (b^-p - a^-p) / (a^-p - k^-p) (geometric in log k: Aitken's
+    extrapolation on the grid k / 4, k / 2, k), and the rest is d1 k^-p / (a^-p - k^-p); inf where the
+    changes do not shrink like a power of k (p below 0.05)."""
+    def ratio(p):
+        return (b ** -p - a ** -p) / (a ** -p - k ** -p)
+
+    lo, hi = 0.05, 8.0
+    if d1 <= 0 or d2 / d1 <= ratio(lo):
+        return np.inf if d1 > 0 else 0.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ratio(mid) < d2 / d1 else (lo, mid)
+    p = 0.5 * (lo + hi)
+    return d1 * k ** -p / (a ** -p - k ** -p)
+
+
 class RecordedRun(PairsRun):
-    """PairsRun that records, every ``EVERY`` iterations, the iterate's error against ``reference`` and, at
-    ``polish_at``, keeps the iterate."""
+    """PairsRun that records, every ``EVERY`` iterations, the iterate's error against ``reference`` and
+    the log-time estimate (keeping those iterates) and, at ``polish_at``, keeps the iterate."""
 
     reference = polish_at = kept = None
     log = []
+    iterates = {}
 
     def status(self, it):
         if it % EVERY == 0 and RecordedRun.reference is not None:
@@ -51,7 +72,13 @@ class RecordedRun(PairsRun):
             E = np.abs(U - ref) / ref.max()
             worst = float(E.max())
             RecordedRun.log.append(dict(it=it, max=worst, q999=float(np.quantile(E, 0.999)),
-                                        rows=int(((E > 0.5 * worst).any(axis=1)).sum())))
+                                        rows=int(((E > 0.5 * worst).any(axis=1)).sum()), log_time=np.inf))
+            kept, top = RecordedRun.iterates, U.max()
+            kept[it] = U
+            a, b = (EVERY * round(it / (f * EVERY)) for f in (2, 4))
+            if 0 < b < a and a in kept and b in kept:
+                d1, d2 = (float(np.abs(kept[x] - kept[y]).max() / top) for x, y in ((it, a), (a, b)))
+                RecordedRun.log[-1]["log_time"] = log_time_rest(it, a, b, d1, d2)
         done = super().status(it)
         if it % EVERY == 0 and RecordedRun.reference is not None:
             RecordedRun.log[-1]["estimate"] = float(self.change_test.change[0])
@@ -98,13 +125,13 @@ def polish_row(U, i, ops, alpha):
 def measure(solver, name, reference, accuracy, args):
     """One run at ``accuracy``: its row (stop, error, the iterations from which each error stays within
     ``LEVELS``, the estimate then); prints the trace and the polish where asked."""
-    RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log = reference, args.polish_at, []
+    RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log, RecordedRun.iterates = reference, args.polish_at, [], {}
     res = solver.solve(accuracy=accuracy)
     log = RecordedRun.log
     for r in log if args.trace else ():
         if r["it"] % 100 == 0:
             print(f"  iteration {r['it']}: max {100 * r['max']:.3f}%, 99.9th percentile {100 * r['q999']:.3f}%, "
-                  f"estimate {100 * r.get('estimate', np.inf):.3f}%", flush=True)
+                  f"estimate {100 * r.get('estimate', np.inf):.3f}%, log-time {100 * r['log_time']:.3f}%", flush=True)
     row = dict(mesh=name, n=solver.mesh.n_vertices, alpha_hat=solver.alpha_hat, dtype=args.dtype, accuracy=accuracy,
                **bench._run_columns(res, reference))
     for level in LEVELS:
@@ -113,6 +140,10 @@ def measure(solver, name, reference, accuracy, args):
     at = {r["it"]: r for r in log}.get(row["max_below_0.01"])
     row["estimate_at_1pct"] = round(100 * at["estimate"], 3) if at else None
     row["rows_at_half_max"] = log[-1]["rows"] if log else None
+    stop = next((r for r in log if r["log_time"] <= 0.7 * accuracy), None)
+    row["log_time_stop"] = stop["it"] if stop else None
+    row["log_time_error_pct"] = round(100 * stop["max"], 3) if stop else None
+    RecordedRun.iterates = {}
     if RecordedRun.kept is not None:
         U, RecordedRun.kept = RecordedRun.kept, None
         top = reference.max()
