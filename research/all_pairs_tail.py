@@ -10,13 +10,15 @@ their 5,000-iteration references in ``--cache`` (those of benchmarks/all_pairs.p
 every 50 iterations, measures the iterate's error against the reference in % of max U: the max, the 99.9th
 percentile over the n^2 entries and the number of rows holding an entry above half the max. Reports the
 rule's stop and error, and the first iteration from which each error stays below 1% and 0.5% (an oracle
-stop, which no rule can make without the reference). Also an estimate that extrapolates in log time
+stop, which no rule can make without the reference), with how far the iterate moved over the last half
+of the run then (max |U_k - U_(k/2)|, in % of max U). Also an estimate that extrapolates in log time
 (:func:`log_time_rest`, from the iterates at k / 4, k / 2 and k) and where it would stop: its first check
-at or below ``eps_change`` = 0.7 e, and the error then (empty: not before the run's stop). With ``--polish-at K``: at iteration K the row with the
-largest error is re-solved exactly with every other entry fixed (block coordinate descent: its column's
-constraints, and each other column's constraints on the elements around its vertex, whose bounds are
-raised to the iterate's own where it exceeds 1; cvxpy + Clarabel), and the error before and after is
-printed. With ``--mesh NAME --reference FILE``: that mesh as it is (a shared mesh or a file) against the matrix
+at or below ``eps_change`` = 0.7 e, and the error then (empty: not before the run's stop).
+
+With ``--polish-at K``: at iteration K the row with the largest error is re-solved exactly with every
+other entry fixed (block coordinate descent: its column's constraints, and each other column's
+constraints on the elements around its vertex, whose bounds are raised to the iterate's own where it
+exceeds 1; cvxpy + Clarabel), and the error before and after is printed. With ``--mesh NAME --reference FILE``: that mesh as it is (a shared mesh or a file) against the matrix
 in FILE (a longer run of the same problem). Writes benchmarks/results/all_pairs_tail.csv and prints a table.
 """
 
@@ -72,13 +74,14 @@ class RecordedRun(PairsRun):
             E = np.abs(U - ref) / ref.max()
             worst = float(E.max())
             RecordedRun.log.append(dict(it=it, max=worst, q999=float(np.quantile(E, 0.999)),
-                                        rows=int(((E > 0.5 * worst).any(axis=1)).sum()), log_time=np.inf))
+                                        rows=int(((E > 0.5 * worst).any(axis=1)).sum()), log_time=np.inf,
+                                        half=np.nan))
             kept, top = RecordedRun.iterates, U.max()
             kept[it] = U
             a, b = (EVERY * round(it / (f * EVERY)) for f in (2, 4))
             if 0 < b < a and a in kept and b in kept:
                 d1, d2 = (float(np.abs(kept[x] - kept[y]).max() / top) for x, y in ((it, a), (a, b)))
-                RecordedRun.log[-1]["log_time"] = log_time_rest(it, a, b, d1, d2)
+                RecordedRun.log[-1].update(log_time=log_time_rest(it, a, b, d1, d2), half=d1)
         done = super().status(it)
         if it % EVERY == 0 and RecordedRun.reference is not None:
             RecordedRun.log[-1]["estimate"] = float(self.change_test.change[0])
@@ -131,7 +134,8 @@ def measure(solver, name, reference, accuracy, args):
     for r in log if args.trace else ():
         if r["it"] % 100 == 0:
             print(f"  iteration {r['it']}: max {100 * r['max']:.3f}%, 99.9th percentile {100 * r['q999']:.3f}%, "
-                  f"estimate {100 * r.get('estimate', np.inf):.3f}%, log-time {100 * r['log_time']:.3f}%", flush=True)
+                  f"estimate {100 * r.get('estimate', np.inf):.3f}%, log-time {100 * r['log_time']:.3f}%, "
+                  f"moved over the last half {100 * r['half']:.3f}%", flush=True)
     row = dict(mesh=name, n=solver.mesh.n_vertices, alpha_hat=solver.alpha_hat, dtype=args.dtype, accuracy=accuracy,
                **bench._run_columns(res, reference))
     for level in LEVELS:
@@ -139,6 +143,7 @@ def measure(solver, name, reference, accuracy, args):
         row[f"q999_below_{level}"] = stays_below(log, "q999", level)
     at = {r["it"]: r for r in log}.get(row["max_below_0.01"])
     row["estimate_at_1pct"] = round(100 * at["estimate"], 3) if at else None
+    row["half_change_at_1pct"] = round(100 * at["half"], 3) if at else None
     row["rows_at_half_max"] = log[-1]["rows"] if log else None
     stop = next((r for r in log if r["log_time"] <= 0.7 * accuracy), None)
     row["log_time_stop"] = stop["it"] if stop else None
