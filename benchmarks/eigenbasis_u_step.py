@@ -13,11 +13,13 @@ triangular product and one symmetric rank-2k update, and Phi^T Diag(mu) Phi as t
 Both run on the same setup (the real stiffness and areas of each mesh, intrinsic operators) and the
 same symmetric right-hand side, alternated, REPEATS calls each: the median seconds of each, their
 ratio and the max difference of the two U in units of the largest |U|; and the floor, four general
-products of the same size (8 n^3 flops at this machine's GEMM rate), alternated with both. Also the
-U-step's setup (eigendecomposition and the diagonal's response), the engine's ms per iteration (30 iterations
-from zeros, after its setup) for the share of the U-step in it, and the consensus engine's (worker
-processes on all cores) on the same problem. Writes
-benchmarks/results/eigenbasis_u_step.csv.
+products of the same size (8 n^3 flops at this machine's GEMM rate), alternated with both. Every
+product is scipy's BLAS: numpy's wheel brings its own OpenBLAS, whose threads spin idle for a while
+after each product and slow the other library's next one. Also the U-step's setup (eigendecomposition
+and the diagonal's response), the engine's ms per iteration (30 iterations from zeros, after its
+setup) for the share of the U-step in it, the same with a^T U^2 a as numpy's product (``numpy_pairs``)
+for that interference in the engine, and the consensus engine's (worker processes on all cores) on
+the same problem. Writes benchmarks/results/eigenbasis_u_step.csv.
 """
 
 import argparse
@@ -37,25 +39,39 @@ import meshes  # noqa: E402
 import stopping  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep  # noqa: E402
+from warp_regdist.kernels.all_pairs import U2, X2  # noqa: E402
+from warp_regdist.kernels.element_core import G2, R2, Z2  # noqa: E402
+from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisADMM, EigenbasisUStep  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "eigenbasis_u_step.csv")
 ITERATIONS = 30
 
 
 def six_products(step, R, scale):
-    """The U-step of ``step`` (an EigenbasisUStep) as six general products: the baseline."""
-    Phi, s, dinv, n, dt = np.ascontiguousarray(step.Phi), step.s, step.dinv, step.n, step.dtype.type
+    """The U-step of ``step`` (an EigenbasisUStep) as six general products (scipy's BLAS, the package's):
+    the baseline."""
+    Phi, s, dinv, n, dt = step.Phi, step.s, step.dinv, step.n, step.dtype.type
+    gemm = sl.get_blas_funcs("gemm", dtype=step.dtype)
     C = (s[:, None] * R.astype(step.dtype, copy=False)) * s[None, :]
-    P = Phi @ ((Phi.T @ C @ Phi) * dinv)
+    P = gemm(1.0, Phi, gemm(1.0, gemm(1.0, Phi, C, trans_a=1), Phi) * dinv)
     diag = np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale
     sol = sl.lu_solve(step.border, np.concatenate([-s.astype(np.float64) ** 2 * diag,
                                                    [-R.sum(dtype=np.float64) / scale]]))
-    P += Phi @ (((Phi.T * dt(scale)) * sol[:n].astype(step.dtype)) @ Phi * dinv)
-    U = s[:, None] * ((P @ Phi.T) * dt(1 / scale)) * s[None, :] + dt(sol[n])
+    P += gemm(1.0, Phi, gemm(scale, Phi * sol[:n].astype(step.dtype)[:, None], Phi, trans_a=1) * dinv)
+    U = s[:, None] * gemm(1 / scale, P, Phi, trans_b=1) * s[None, :] + dt(sol[n])
     U = 0.5 * (U + U.T)
     np.fill_diagonal(U, 0)
     return U
+
+
+def numpy_pairs(state):
+    """``EigenbasisADMM.consensus`` with a^T U^2 a as numpy's product, whose wheel brings its own OpenBLAS:
+    the baseline of the engine's iteration."""
+    acc = state.view("acc").reshape(5, -1)
+    U = state._matrix("U")
+    pairs = np.zeros(5)
+    pairs[X2] = pairs[U2] = float(state._areas @ (state._areas_dt @ (U * U)).astype(np.float64))
+    return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
 
 def rows_for(name, mesh, dtypes, repeats):
@@ -68,29 +84,35 @@ def rows_for(name, mesh, dtypes, repeats):
         setup = time.perf_counter() - t0
         R = np.random.default_rng(0).standard_normal((n, n))
         R += R.T
-        A = np.asfortranarray(R, dtype=dtype)
+        A, gemm = np.asfortranarray(R, dtype=dtype), sl.get_blas_funcs("gemm", dtype=np.dtype(dtype))
         times = {"package": [], "six products": [], "floor": []}
         for _ in range(repeats):
             for label, f in (("package", step), ("six products", lambda R, s: six_products(step, R, s)),
-                             ("floor", lambda R, s: [A @ A for _ in range(4)])):
+                             ("floor", lambda R, s: [gemm(1.0, A, A) for _ in range(4)])):
                 t0 = time.perf_counter()
                 f(R, 2.5)
                 times[label].append(time.perf_counter() - t0)
         U = step(R, 2.5)
         difference = np.abs(U.astype(np.float64) - six_products(step, R, 2.5)).max()
         iteration_ms = {}
-        for engine in ("eigenbasis", "consensus"):
+        package_pairs = EigenbasisADMM.consensus
+        for engine in ("eigenbasis", "numpy product", "consensus"):
             solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", dtype=dtype, triangulation="intrinsic",
-                                        options=wrd.AllPairsOptions(engine=engine))
-            getattr(solver, "u_step" if engine == "eigenbasis" else "hierarchy")  # the setup, outside the timing
-            res = solver.solve(max_iterations=ITERATIONS)
+                                        options=wrd.AllPairsOptions(engine=engine.replace("numpy product", "eigenbasis")))
+            getattr(solver, "hierarchy" if engine == "consensus" else "u_step")  # the setup, outside the timing
+            EigenbasisADMM.consensus = numpy_pairs if engine == "numpy product" else package_pairs
+            try:
+                res = solver.solve(max_iterations=ITERATIONS)
+            finally:
+                EigenbasisADMM.consensus = package_pairs
             iteration_ms[engine] = round(1e3 * res.seconds / res.iterations, 1)
         package, baseline = (float(np.median(times[k])) for k in ("package", "six products"))
         rows.append(dict(mesh=name, n=n, dtype=dtype, threads=len(os.sched_getaffinity(0)), setup_s=round(setup, 2),
                          package_ms=round(1e3 * package, 1), six_products_ms=round(1e3 * baseline, 1),
                          ratio=round(baseline / package, 2), floor_ms=round(1e3 * float(np.median(times["floor"])), 1),
                          difference=float(f"{difference / np.abs(U).max():.2e}"),
-                         iteration_ms=iteration_ms["eigenbasis"], consensus_iteration_ms=iteration_ms["consensus"]))
+                         iteration_ms=iteration_ms["eigenbasis"], numpy_iteration_ms=iteration_ms["numpy product"],
+                         consensus_iteration_ms=iteration_ms["consensus"]))
         print(rows[-1], flush=True)
     return rows
 
