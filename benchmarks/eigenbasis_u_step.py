@@ -2,6 +2,7 @@
 
     python benchmarks/eigenbasis_u_step.py                 # cat_rr decimated to 500 and 1,000, cat_rr
     python benchmarks/eigenbasis_u_step.py --repeats 9 --dtypes float32
+    python benchmarks/eigenbasis_u_step.py --out benchmarks/results/eigenbasis_u_step_floor.csv
 
 The package's U-step writes every product with a symmetric middle factor S = L + L^T as one
 triangular product and one symmetric rank-2k update, and Phi^T Diag(mu) Phi as two rank-k updates:
@@ -19,7 +20,7 @@ after each product and slow the other library's next one. Also the U-step's setu
 and the diagonal's response), the engine's ms per iteration (30 iterations from zeros, after its
 setup) for the share of the U-step in it, the same with a^T U^2 a as numpy's product (``numpy_pairs``)
 for that interference in the engine, and the consensus engine's (worker processes on all cores) on
-the same problem. Writes benchmarks/results/eigenbasis_u_step.csv.
+the same problem. Writes benchmarks/results/eigenbasis_u_step.csv (or ``--out``).
 """
 
 import argparse
@@ -123,6 +124,7 @@ def main():
     parser.add_argument("--dtypes", nargs="+", default=["float32", "float64"])
     parser.add_argument("--decimations", type=int, nargs="*", default=[500, 1000], help="cat_rr decimated to these")
     parser.add_argument("--no-full", dest="full", action="store_false", help="leave out cat_rr itself")
+    parser.add_argument("--out", default=RESULTS)
     args = parser.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     warnings.simplefilter("ignore", wrd.ConvergenceWarning)
@@ -132,8 +134,8 @@ def main():
     cases += [("cat_rr", meshes.shared_mesh("cat_rr"))] if args.full else []
     rows = [row for name, mesh in cases for row in rows_for(name, mesh, args.dtypes, args.repeats)]
     print(markdown_table(rows))
-    write_csv(rows, RESULTS)
-    print(f"wrote {RESULTS}")
+    write_csv(rows, args.out)
+    print(f"wrote {args.out}")
     return 0
 
 
