@@ -46,25 +46,17 @@ class LaggedUStep(EigenbasisUStep):
     damping = 1.0
 
     def __call__(self, R, scale):
-        Phi, s, n, dt = self.Phi, self.s, self.n, self.dtype.type
+        s, n = self.s, self.n
         mu_prev = getattr(self, "mu_prev", np.zeros(n))
         C = ((s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]).T
         C[np.diag_indices(n)] += mu_prev.astype(self.dtype)
-        C[np.diag_indices(n)] *= 0.5
-        Y = self._times_dinv(self._syr2k(1.0, Phi, self._trmm(1.0, C, Phi, lower=1), trans=1, lower=1))
-        P = self._trmm(1.0, Y, Phi, side=1, lower=1)
-        diag = 2 * np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale
+        P = self.half_solve(C)
+        diag = 2 * np.einsum("ij,ij->i", P, self.Phi, dtype=np.float64) / scale
         areas = 1 / s.astype(np.float64) ** 2
         rhs = np.concatenate([-diag / areas, [-(R.sum(dtype=np.float64) + areas @ mu_prev) / scale]])
         sol = sl.lu_solve(self.border, rhs)
         self.mu_prev = mu_prev + self.damping * scale * sol[:n]
-        U = self._syr2k(1 / scale, P, Phi, lower=1).T
-        U *= s[:, None]
-        U *= s[None, :]
-        U += dt(sol[n])
-        U = np.triu(U, 1)
-        U += U.T
-        return U
+        return self.to_vertices(P, scale, sol[n])
 
 
 def traced(step_class, reference, trace):
@@ -118,7 +110,8 @@ def main():
     import warp as wp
     wp.config.quiet = True
     rows = []
-    for name, mesh, alpha_hat, reference, _ in bench.larger_cases(args.cache, "intrinsic", bench.parse_cases(args.cases)):
+    cases = bench.larger_cases(args.cache, "intrinsic", bench.parse_cases(args.cases))
+    for name, mesh, alpha_hat, reference, _ in cases:
         for variant in args.variants:
             rows += variant_rows(name, mesh, alpha_hat, reference, variant, args.max_iterations)
             print(markdown_table(rows[-1:]), flush=True)

@@ -88,16 +88,31 @@ class EigenbasisUStep:
         T[np.diag_indices(self.n)] *= 0.5
         return T
 
+    def half_solve(self, C):
+        """P = Phi L (n, n) for symmetric C (n, n, Fortran order; overwritten), where L is the lower
+        triangle (diagonal halved) of Y = (Phi^T C Phi) * dinv: Phi Y Phi^T = P Phi^T + Phi P^T."""
+        C[np.diag_indices(self.n)] *= 0.5  # C = L_C + L_C^T: Phi^T C Phi = syr2k(Phi, L_C Phi)
+        Y = self._times_dinv(self._syr2k(1.0, self.Phi, self._trmm(1.0, C, self.Phi, lower=1), trans=1, lower=1))
+        del C  # at most four (n, n) temporaries at a time (memory_estimate)
+        return self._trmm(1.0, Y, self.Phi, side=1, lower=1)
+
+    def to_vertices(self, P, scale, c):
+        """U = S (P Phi^T + Phi P^T) S / scale + c (n, n) with S = M^(-1/2), from its upper triangle:
+        exactly symmetric, zero diagonal."""
+        s = self.s
+        U = self._syr2k(1 / scale, P, self.Phi, lower=1).T  # its upper triangle
+        U *= s[:, None]
+        U *= s[None, :]
+        U += self.dtype.type(c)
+        U = np.triu(U, 1)
+        U += U.T
+        return U
+
     def __call__(self, R, scale):
         """U (n, n) in ``dtype``: exactly symmetric, zero diagonal."""
-        Phi, s, n, dt = self.Phi, self.s, self.n, self.dtype.type
-        C = ((s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]).T  # symmetric, Fortran order
-        C[np.diag_indices(n)] *= 0.5  # C = L + L^T with L its lower triangle: Phi^T C Phi = syr2k(Phi, L Phi)
-        Y = self._times_dinv(self._syr2k(1.0, Phi, self._trmm(1.0, C, Phi, lower=1), trans=1, lower=1))
-        del C  # at most four (n, n) temporaries at a time (memory_estimate)
-        P = self._trmm(1.0, Y, Phi, side=1, lower=1)  # Phi Y, diag(Phi (Y + Y^T) Phi^T) = 2 rowsum(Phi Y * Phi)
-        del Y
-        diag = 2 * np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale
+        Phi, s, n = self.Phi, self.s, self.n
+        P = self.half_solve(((s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]).T)
+        diag = 2 * np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale  # diag(Phi (L + L^T) Phi^T) / scale
         rhs = np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]])
         sol = sl.lu_solve(self.border, rhs)  # the scaled multipliers M^(-1) mu / scale, and c
         mu = (scale * sol[:n]).astype(self.dtype)
@@ -108,13 +123,7 @@ class EigenbasisUStep:
                                overwrite_c=1, lower=1)
         P += self._trmm(1.0, self._times_dinv(S), Phi, side=1, lower=1)
         del S
-        U = self._syr2k(1 / scale, P, Phi, lower=1).T  # Phi (Y + Y^T) Phi^T / scale: its upper triangle
-        U *= s[:, None]
-        U *= s[None, :]
-        U += dt(sol[n])
-        U = np.triu(U, 1)
-        U += U.T
-        return U
+        return self.to_vertices(P, scale, sol[n])
 
 
 class EigenbasisADMM(PairsState):
