@@ -209,7 +209,7 @@ class EigenbasisADMM(PairsState):
         U = self._matrix("U")
         pairs = np.zeros(5)
         # a^T U^2 a with scipy's BLAS, the U-step's: numpy's wheel has its own OpenBLAS, whose threads spin
-        # idle for a while after each product and would take the cores from the next U-step (half its speed)
+        # idle for a while after each product and would take the cores from the next U-step (up to half its speed)
         U2a = self._gemv(1.0, (U * U).T, self._areas_dt)  # U * U is symmetric: its transpose is Fortran order
         pairs[X2] = pairs[U2] = float(self._areas @ U2a.astype(np.float64))
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
