@@ -18,8 +18,9 @@ at or below ``eps_change`` = 0.7 e, and the error then (empty: not before the ru
 With ``--polish-at K``: at iteration K the row with the largest error is re-solved exactly with every
 other entry fixed (block coordinate descent: its column's constraints, and each other column's
 constraints on the elements around its vertex, whose bounds are raised to the iterate's own where it
-exceeds 1; cvxpy + Clarabel), and the error before and after is printed. With ``--mesh NAME --reference FILE``: that mesh as it is (a shared mesh or a file) against the matrix
-in FILE (a longer run of the same problem). Writes benchmarks/results/all_pairs_tail.csv and prints a table.
+exceeds 1; cvxpy + Clarabel), and the error before and after is printed. With ``--mesh NAME --reference
+FILE``: that mesh as it is (a shared mesh or a file) against the matrix in FILE (a longer run of the same
+problem). Writes benchmarks/results/all_pairs_tail.csv and prints a table.
 """
 
 import argparse
@@ -62,7 +63,7 @@ def log_time_rest(k, a, b, d1, d2):
 
 class RecordedRun(PairsRun):
     """PairsRun that records, every ``EVERY`` iterations, the iterate's error against ``reference`` and
-    the log-time estimate (keeping those iterates) and, at ``polish_at``, keeps the iterate."""
+    the log-time estimate (keeping the iterates from k / 4 on) and, at ``polish_at``, keeps the iterate."""
 
     reference = polish_at = kept = None
     log = []
@@ -82,6 +83,8 @@ class RecordedRun(PairsRun):
             if 0 < b < a and a in kept and b in kept:
                 d1, d2 = (float(np.abs(kept[x] - kept[y]).max() / top) for x, y in ((it, a), (a, b)))
                 RecordedRun.log[-1].update(log_time=log_time_rest(it, a, b, d1, d2), half=d1)
+            for x in [x for x in kept if x < b]:  # b grows with it: no later check needs these
+                del kept[x]
         done = super().status(it)
         if it % EVERY == 0 and RecordedRun.reference is not None:
             RecordedRun.log[-1]["estimate"] = float(self.change_test.change[0])
@@ -128,7 +131,8 @@ def polish_row(U, i, ops, alpha):
 def measure(solver, name, reference, accuracy, args):
     """One run at ``accuracy``: its row (stop, error, the iterations from which each error stays within
     ``LEVELS``, the estimate then); prints the trace and the polish where asked."""
-    RecordedRun.reference, RecordedRun.polish_at, RecordedRun.log, RecordedRun.iterates = reference, args.polish_at, [], {}
+    RecordedRun.reference, RecordedRun.polish_at = reference, args.polish_at
+    RecordedRun.log, RecordedRun.iterates = [], {}
     res = solver.solve(accuracy=accuracy)
     log = RecordedRun.log
     for r in log if args.trace else ():

@@ -41,7 +41,7 @@ REPORT_EVERY = 300
 
 class LaggedUStep(EigenbasisUStep):
     """The U-step with mu from the last call in the right-hand side (6 n^3 flops); ``damping`` scales the
-    correction kept for the next call. Records each call's U, for the change per iteration."""
+    correction kept for the next call."""
 
     damping = 1.0
 
