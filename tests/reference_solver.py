@@ -100,8 +100,7 @@ def vertex_areas(V, F):
 def intrinsic_geometry(V, F):
     """Face areas, per-face gradient matrices and lumped vertex areas on the intrinsic Delaunay
     triangulation of a triangle mesh, from libigl's ``intrinsic_delaunay_triangulation`` (an
-    implementation independent of the package's): each face is laid out flat from its edge lengths
-    (corner 0 at the origin, corner 1 on the x axis) and the gradients are 2-vectors (z = 0).
+    implementation independent of the package's).
 
     Returns
     -------
@@ -111,7 +110,14 @@ def intrinsic_geometry(V, F):
 
     l0 = igl.edge_lengths(np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64))
     l, Fi = igl.intrinsic_delaunay_triangulation(l0, np.asarray(F, dtype=np.int64))[:2]
-    n, m = len(V), len(Fi)
+    return length_geometry(len(V), Fi, l)
+
+
+def length_geometry(n, Fi, l, weight=1.0):
+    """(areas, grads, A_V) of a triangulation known by its faces Fi (m, 3) over n vertices and lengths
+    l (m, 3), l[:, k] opposite corner k: each face laid out flat (corner 0 at the origin, corner 1 on
+    the x axis), the gradients 2-vectors (z = 0); every area counts ``weight`` times."""
+    m = len(Fi)
     a, b, c = l[:, 0], l[:, 1], l[:, 2]                     # opposite corners 0, 1, 2
     P = np.zeros((m, 3, 3))
     P[:, 1, 0] = c
@@ -119,9 +125,9 @@ def intrinsic_geometry(V, F):
     P[:, 2, 1] = np.sqrt(np.maximum(b * b - P[:, 2, 0] ** 2, 0.0))
     flat = P.reshape(-1, 3)
     corners = np.arange(3 * m).reshape(m, 3)
-    areas, _ = face_geometry(flat, corners)
+    areas = weight * face_geometry(flat, corners)[0]
     local = gradient_matrices(flat, corners)                  # (m, 3m): columns are corners
-    to_vertex = sp.csr_matrix((np.ones(3 * m), (np.arange(3 * m), Fi.ravel())), shape=(3 * m, n))
+    to_vertex = sp.csr_matrix((np.ones(3 * m), (np.arange(3 * m), np.asarray(Fi).ravel())), shape=(3 * m, n))
     grads = [(g @ to_vertex).tocsr() for g in local]
     A_V = np.zeros(n)
     for k in range(3):
@@ -130,8 +136,11 @@ def intrinsic_geometry(V, F):
 
 
 def discrete_operators(V, F, triangulation="intrinsic"):
-    """(areas, grads, A_V) of the problem on the mesh's own elements ("mesh") or on the intrinsic
-    Delaunay triangulation (triangle meshes; tetrahedra always use their own)."""
+    """(areas, grads, A_V) of the problem on the mesh's own elements ("mesh"), on the intrinsic
+    Delaunay triangulation (triangle meshes; tetrahedra always use their own), or on a given
+    triangulation (Fi, l, weight) (:func:`length_geometry`)."""
+    if not isinstance(triangulation, str):
+        return length_geometry(len(V), *triangulation)
     if triangulation == "intrinsic" and F.shape[1] == 3:
         return intrinsic_geometry(V, F)
     return face_geometry(V, F)[0], gradient_matrices(V, F), vertex_areas(V, F)
@@ -159,9 +168,10 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, t
         the objective becomes -A_V^T u + (alpha / 2) u^T W u, written as |R u|^2 with
         R = diag(sqrt(lambda)) Q^T from the dense eigendecomposition W = Q diag(lambda) Q^T
         (eigenvalues below 0, round-off, clipped to 0; for a few hundred vertices).
-    triangulation : {"intrinsic", "mesh"}
+    triangulation : {"intrinsic", "mesh"} or (Fi, l, weight)
         The triangulation of the gradient constraint, the energy and the lumped areas
-        (:func:`discrete_operators`), as the package's ``triangulation``.
+        (:func:`discrete_operators`), as the package's ``triangulation``, or one given by its faces
+        and lengths.
 
     Returns
     -------

@@ -150,3 +150,151 @@ def test_the_triangulation_argument(cat80):
         wrd.DistanceSolver(cube, 0.05, triangulation="intrinsic")
     with pytest.raises(ValueError, match="expected triangulation 'intrinsic', 'mesh' or None, got 'delaunay'"):
         wrd.DistanceSolver(cat80, 0.05, triangulation="delaunay")
+
+
+SCANS = np.load(DATA / "scan_decimations.npz")
+"""65 decimations (95-2,001 vertices) of 16 public scanned and CAD meshes (tools/make_scan_decimations.py):
+closed and with boundary, 17 with non-manifold edges."""
+
+
+def _scan(k):
+    V, F = SCANS[f"vertices_{k}"].astype(np.float64), SCANS[f"faces_{k}"].astype(np.int64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.MeshWarning)       # a few have vertices at one position
+        return wrd.Mesh(V, F)
+
+
+def _interior_weights(W, F, n):
+    """The off-diagonal stiffness entries of the pairs that are not boundary edges of the input F."""
+    W = W.tocoo()
+    a, b = F.ravel(), np.roll(F, -1, axis=1).ravel()
+    keys, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_counts=True)
+    pair = np.minimum(W.row, W.col) * n + np.maximum(W.row, W.col)
+    return W.data[(W.row != W.col) & ~np.isin(pair, keys[counts == 1])]
+
+
+@pytest.mark.parametrize("k", range(len(SCANS.files) // 3))
+def test_flips_reach_the_delaunay_triangulation_of_every_decimated_scan(k):
+    import igl
+    import robust_laplacian
+
+    mesh = _scan(k)
+    V, F = mesh.vertices, mesh.elements
+    ops = build_operators(mesh, "intrinsic")
+    W = ops.stiffness
+    scale = np.abs(W.data).max()
+    assert _interior_weights(W, F, mesh.n_vertices).max() <= 1e-12 * scale       # every cotangent weight >= 0
+    if ops.intrinsic is not None and ops.intrinsic.tufted:
+        # Sharp and Crane's own implementation of the tufted cover (mollification off): L and its masses
+        L, M = robust_laplacian.mesh_laplacian(V, F, mollify_factor=0.0)
+        np.testing.assert_allclose(ops.vertex_volumes, M.diagonal(), rtol=1e-12)
+    else:
+        L = -igl.intrinsic_delaunay_cotmatrix(V, F)[0]
+    assert np.abs(W - L).max() <= 1e-10 * scale                                   # measured: 1e-15 to 5e-11
+    assert ops.total_volume == pytest.approx(mesh.element_volumes.sum(), rel=1e-12)
+
+
+def test_the_decimations_cover_the_configurations():
+    tufted = [k for k in range(len(SCANS.files) // 3) if build_operators(_scan(k), "intrinsic").intrinsic.tufted]
+    assert len(tufted) == 17
+    # a closed, oriented, manifold input whose Delaunay triangulation has two faces on the same three vertices
+    cheburashka = _scan(20)
+    assert str(SCANS["name_20"]) == "cheburashka" and cheburashka.n_vertices == 2001
+    T = intrinsic_delaunay(cheburashka.vertices, cheburashka.elements)
+    assert T.flip_count == 1480 and not T.tufted
+    shared = np.sort(T.faces, axis=1)
+    assert len(np.unique(shared, axis=0)) < len(shared)        # two faces on the same three vertices
+
+
+def test_flips_go_through_faces_that_share_two_edges():
+    # a pillow: one obtuse triangle on both sides, glued along all three edges. Each side of the long
+    # edge has the 140-degree angle opposite it; its flip makes a loop at vertex 2 (degree 1 vertices 0, 1)
+    V = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.36, 0.0]])
+    F = np.array([[0, 1, 2], [1, 0, 2]])
+    T = intrinsic_delaunay(V, F)
+    assert T.flip_count == 1 and not T.tufted
+    assert sorted(map(sorted, T.faces.tolist())) == [[0, 2, 2], [1, 2, 2]]
+    side = np.hypot(1.0, 0.36)                  # the loop round vertex 2 is twice the triangle's height
+    np.testing.assert_allclose(np.sort(T.lengths, axis=1), [[0.72, side, side]] * 2, rtol=1e-14)
+    ops = build_operators(wrd.Mesh(V, F), "intrinsic")
+    W = ops.stiffness.toarray()
+    assert (W - np.diag(np.diag(W))).max() <= 0.0 and np.abs(W.sum(axis=1)).max() < 1e-14
+    import igl
+
+    np.testing.assert_allclose(W, -igl.intrinsic_delaunay_cotmatrix(V, F)[0].toarray(), atol=1e-14)
+
+
+def test_an_inconsistently_oriented_mesh_gets_the_operators_of_the_oriented_one(cat80):
+    F = cat80.elements.copy()
+    reversed_faces = np.arange(0, len(F), 3)
+    F[reversed_faces] = F[reversed_faces][:, [0, 2, 1]]
+    flipped = build_operators(wrd.Mesh(cat80.vertices, F), "intrinsic")
+    oriented = build_operators(cat80, "intrinsic")
+    assert not flipped.intrinsic.tufted and flipped.intrinsic.flip_count == 42
+    assert np.abs(flipped.stiffness - oriented.stiffness).max() <= 1e-13 * np.abs(oriented.stiffness).max()
+    np.testing.assert_allclose(flipped.vertex_volumes, oriented.vertex_volumes, rtol=1e-13)
+
+
+def _moebius(k=12):
+    """A Moebius strip of 2 k vertices: a manifold that cannot be oriented."""
+    t = np.linspace(0.0, 2.0 * np.pi, k, endpoint=False)
+    V = np.concatenate([np.stack([(1 + s * np.cos(t / 2)) * np.cos(t), (1 + s * np.cos(t / 2)) * np.sin(t),
+                                  s * np.sin(t / 2)], axis=1) for s in (-0.3, 0.3)])
+    i = np.arange(k)
+    j = (i + 1) % k
+    top = np.where(j == 0, 0, j + k)            # past the last rung the strip comes back upside down
+    bottom = np.where(j == 0, k, j)
+    F = np.concatenate([np.stack([i, bottom, i + k], 1), np.stack([i + k, bottom, top], 1)])
+    return V, F
+
+
+@pytest.mark.parametrize("case", ["book", "moebius"])
+def test_non_manifold_and_non_orientable_meshes_use_the_tufted_cover(case):
+    import robust_laplacian
+
+    if case == "book":      # five obtuse pages on one spine
+        angles = np.radians([0.0, 70.0, 150.0, 200.0, 290.0])
+        V = np.concatenate([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]],
+                            np.stack([0.3 * np.cos(angles), 0.3 * np.sin(angles), 0.1 * np.arange(5) - 0.2], 1)])
+        F = np.array([[0, 1, 2 + p] for p in range(5)])
+    else:
+        V, F = _moebius()
+    mesh = wrd.Mesh(V, F)
+    ops = build_operators(mesh, "intrinsic")
+    assert ops.intrinsic.tufted and ops.intrinsic.faces.shape == (2 * len(F), 3) and ops.intrinsic.flip_count > 0
+    L, M = robust_laplacian.mesh_laplacian(V, F, mollify_factor=0.0)
+    assert np.abs(ops.stiffness - L).max() <= 1e-12 * np.abs(L).max()
+    np.testing.assert_allclose(ops.vertex_volumes, M.diagonal(), rtol=1e-12)
+    assert ops.total_volume == pytest.approx(mesh.element_volumes.sum(), rel=1e-14)
+
+
+def test_a_distance_on_a_non_manifold_scan_is_the_conic_solve_on_its_tufted_cover():
+    mesh = next(m for m in map(_scan, range(len(SCANS.files) // 3)) if m.n_vertices < 200 and
+                build_operators(m, "intrinsic").intrinsic.tufted)          # beast at 132 vertices
+    T = build_operators(mesh, "intrinsic").intrinsic
+    alpha = 0.05 * np.sqrt(mesh.element_volumes.sum())
+    expected = rs.solve_reference(mesh.vertices, mesh.elements, [0], alpha,
+                                  triangulation=(T.faces, T.lengths[:, [1, 2, 0]], T.area_weight))
+    res = wrd.DistanceSolver(mesh, 0.05, options=TIGHT).solve([0])
+    assert res.converged and np.abs(res.distance - expected).max() <= 1e-3 * expected.max()
+    cut = wrd.repair_mesh(mesh.vertices, mesh.elements)[0]
+    assert np.abs(wrd.DistanceSolver(cut, 0.05, options=TIGHT).solve([0]).distance[:mesh.n_vertices]
+                  - expected).max() > 1e-2 * expected.max()            # cutting solves another problem
+
+
+def test_gradients_go_through_the_tufted_cover():
+    V, F = _moebius(16)
+    mesh = wrd.Mesh(V, F)
+    solver = wrd.DistanceSolver(mesh, 0.1, workers=1)
+    assert solver.operators.intrinsic.tufted
+    rng = np.random.default_rng(2)
+    b = rng.random(mesh.n_vertices)
+    g = solver.solve([0]).vjp(b)
+    D = rng.standard_normal(V.shape)
+
+    def value(h):
+        moved = wrd.DistanceSolver(wrd.Mesh(V + h * D, F), 0.1, workers=1)
+        return b @ moved.solve([0]).polish().distance
+
+    fd = (value(1e-7) - value(-1e-7)) / 2e-7
+    assert (g.vertices * D).sum() == pytest.approx(fd, rel=1e-5)

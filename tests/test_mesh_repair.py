@@ -92,10 +92,10 @@ def test_the_command_line_names_repair_where_it_fixes_a_refusal(tmp_path, capsys
     with open(path, "w") as f:
         f.writelines(f"v {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
         f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F[:3])
+        f.write("f 2 6 1\n")                                  # the zero-area face
     code = main(["distance", str(path), "--sources", "0", "--output", str(tmp_path / "u.npy")])
     err = capsys.readouterr().err
-    assert code == 2 and err.strip().endswith("got 1 non-manifold edges (first: edge [0, 1] shared by 3 faces); "
-                                              "--repair cuts the mesh along them")
+    assert code == 2 and err.strip().endswith("got 1 zero-area face(s) (first: face 3 = [1, 5, 0]); --repair drops them")
     assert main(["distance", str(path), "--sources", "0", "--repair", "--output", str(tmp_path / "u.npy"),
                  "--quiet"]) == 0
     assert np.load(tmp_path / "u.npy").shape == (7,)
@@ -114,3 +114,4 @@ def test_split_components_gives_each_component_as_a_mesh():
     with pytest.raises(ValueError, match=r"expected a connected mesh, got 2 connected components \(warp_regdist\."
                                          r"split_components\(mesh\) gives each"):
         wrd.AllPairsSolver(wrd.Mesh(V[1:], F - 1))
+

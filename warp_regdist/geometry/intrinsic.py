@@ -4,15 +4,27 @@ A triangle of a surface mesh is known to the operators by its three edge lengths
 edge *intrinsically* replaces it by the other diagonal of the two triangles beside it, laid out flat
 in the plane: the surface, its area and its vertices stay as they are, and only the triangulation
 changes. Flipping every edge whose two opposite angles sum to more than pi (Lawson's algorithm,
-Fisher et al. 2007) ends at the intrinsic Delaunay triangulation, whose cotangent weights are all
->= 0 (the discrete maximum principle), where obtuse triangles of the input made them negative.
+Fisher et al. 2007; it ends on any intrinsic triangulation, Indermitte et al. 2001) ends at the
+intrinsic Delaunay triangulation, whose cotangent weights are all >= 0 (the discrete maximum
+principle), where obtuse triangles of the input made them negative.
 
 The triangulation is a halfedge structure: halfedge h = 3 f + i runs from corner i of face f to
 corner i + 1 and has a length, a twin (-1 on the boundary) and a variable id that names its length
-for :func:`length_gradient`. The flips are made in rounds of non-adjacent edges, each round one
-vectorized step; every flip records the five lengths its new diagonal came from, so that the
-derivative of the final lengths with respect to the input's edge lengths (and positions) follows by
-the chain rule in reverse.
+for :func:`length_gradient`. Any gluing is allowed: two faces may share two edges, a face may be
+glued to itself, a vertex may have degree 1. How the input's faces are glued:
+
+- an edge-manifold mesh that can be oriented is oriented consistently (face by face, for the
+  flips only: the faces' orientation does not change the surface) and glued along its edges;
+- any other (edges with three or more faces, or a Moebius-like component) is replaced by its
+  *tufted cover* (Sharp and Crane 2020, "A Laplacian for Nonmanifold Triangle Meshes"): every
+  face twice, once each way, and around each edge each face's side glued to the side of the next
+  face round the edge that faces it. That cover is an oriented surface without boundary over the
+  same vertices, so the flips and the cotangent weights are those of an ordinary surface; every
+  cover face counts half its area (``area_weight``), so the operators are those of the mesh.
+
+The flips are made in rounds of non-adjacent edges, each round one vectorized step; every flip
+records the five lengths its new diagonal came from, so that the derivative of the final lengths
+with respect to the input's edge lengths (and positions) follows by the chain rule in reverse.
 """
 
 from __future__ import annotations
@@ -20,6 +32,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+
+from ..errors import MeshError
 
 __all__ = ["IntrinsicTriangulation", "intrinsic_delaunay", "flat_layout", "flat_layout_gradient", "length_gradient"]
 
@@ -44,6 +60,9 @@ class IntrinsicTriangulation:
     flips : list of (ids (k,), parents (k, 5), partials (k, 5))
         One entry per round: the new lengths' ids, the five ids each was computed from
         (l_ab, l_bc, l_ca, l_ad, l_db of its quad) and d(new length) / d(each of them).
+    area_weight : float
+        What each face's area counts in the operators: 1, or 1/2 on a tufted cover (each input face
+        is there twice).
     """
 
     faces: np.ndarray
@@ -51,28 +70,106 @@ class IntrinsicTriangulation:
     length_ids: np.ndarray
     edges: np.ndarray
     flips: list
+    area_weight: float = 1.0
 
     @property
     def flip_count(self):
         return int(sum(ids.size for ids, _, _ in self.flips))
 
+    @property
+    def tufted(self):
+        """Whether the triangulation covers the mesh twice (non-manifold or non-orientable input)."""
+        return self.area_weight != 1.0
 
-def _halfedges(faces):
-    """(twin (3m,), edge id (3m,), edges (E, 2)) of a triangle list: halfedge 3 f + i runs from
-    faces[f, i] to faces[f, (i + 1) % 3]; the twin is the opposite halfedge of the same edge in another
-    face (-1 on the boundary, and where two faces run along their shared edge the same way)."""
-    m = faces.shape[0]
+
+def _edges(faces):
+    """(edge id (3m,), edges (E, 2), forward (3m,) bool) of a triangle list: halfedge 3 f + i runs from
+    faces[f, i] to faces[f, (i + 1) % 3]; ``forward`` where it runs from the lower vertex to the higher."""
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    edges, edge_id = np.unique(np.stack([lo, hi], axis=1), axis=0, return_inverse=True)
-    edge_id = edge_id.ravel()
+    edges, edge_id = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1), axis=0, return_inverse=True)
+    return edge_id.ravel(), edges, a < b
+
+
+def _orientation(edge_id, forward, m):
+    """(m,) bool, the faces to reverse so that every edge with two faces is run both ways, or None where a
+    component cannot be oriented. Face f is node f (as it is) and f + m (reversed) of a graph that joins
+    the two faces of an edge as they fit; f is reversed when its reversed node has the smaller label."""
     order = np.argsort(edge_id, kind="stable")
-    twin = np.full(3 * m, -1, dtype=np.int64)
-    same = edge_id[order[1:]] == edge_id[order[:-1]]
-    h0, h1 = order[:-1][same], order[1:][same]
-    opposite = a[h0] == b[h1]
-    twin[h0[opposite]], twin[h1[opposite]] = h1[opposite], h0[opposite]
-    return twin, edge_id, edges
+    pair = edge_id[order[1:]] == edge_id[order[:-1]]
+    h0, h1 = order[:-1][pair], order[1:][pair]
+    f, g = h0 // 3, h1 // 3
+    fits = forward[h0] != forward[h1]
+    rows = np.concatenate([f, f + m])
+    cols = np.concatenate([np.where(fits, g, g + m), np.where(fits, g + m, g)])
+    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(2 * m, 2 * m))
+    labels = csgraph.connected_components(graph, directed=False)[1]
+    if np.any(labels[:m] == labels[m:]):
+        return None
+    return labels[m:] < labels[:m]
+
+
+def _twins_by_edge(edge_id, forward):
+    """(3m,) twin of each halfedge of an oriented edge-manifold triangle list (-1 on the boundary)."""
+    order = np.argsort(edge_id, kind="stable")
+    pair = edge_id[order[1:]] == edge_id[order[:-1]]
+    h0, h1 = order[:-1][pair], order[1:][pair]
+    twin = np.full(edge_id.size, -1, dtype=np.int64)
+    twin[h0], twin[h1] = h1, h0
+    return twin
+
+
+def _tufted_cover(vertices, faces, edge_id, forward):
+    """(faces (2m, 3), twin (6m,)): the faces, then each reversed (corners 0, 2, 1), glued round each
+    edge. At edge (lo, hi), the faces are sorted by the angle of their third corner about the edge's
+    direction e; the copy of a face that runs lo -> hi has the normal e x d (d: towards its third
+    corner), facing the next face round, whose copy that runs hi -> lo faces back: those two halfedges
+    are twins (one face alone: its two copies)."""
+    m = faces.shape[0]
+    h = np.arange(3 * m)
+    f, i = h // 3, h % 3
+    reverse = 3 * (m + f) + (2 - i)                       # the same edge in the reversed copy, run the other way
+    a, b, c = faces[f, i], faces[f, (i + 1) % 3], faces[f, (i + 2) % 3]
+    lo, hi = np.where(forward, a, b), np.where(forward, b, a)
+    e = vertices[hi] - vertices[lo]
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    d = vertices[c] - vertices[lo]
+    d -= np.einsum("ij,ij->i", d, e)[:, None] * e
+    order = np.argsort(edge_id, kind="stable")
+    first = np.flatnonzero(np.concatenate([[True], edge_id[order[1:]] != edge_id[order[:-1]]]))
+    reference = np.empty_like(d)
+    reference[order] = np.repeat(d[order[first]], np.diff(np.append(first, 3 * m)), axis=0)
+    side = np.cross(e, reference)
+    angle = np.arctan2(np.einsum("ij,ij->i", d, side), np.einsum("ij,ij->i", d, reference))
+    order = np.lexsort((h, angle, edge_id))               # round each edge, by angle
+    start = np.flatnonzero(np.concatenate([[True], edge_id[order[1:]] != edge_id[order[:-1]]]))
+    group = np.repeat(start, np.diff(np.append(start, 3 * m)))
+    end = np.repeat(np.append(start[1:], 3 * m), np.diff(np.append(start, 3 * m)))
+    position = np.arange(3 * m)
+    following = np.where(position + 1 < end, position + 1, group)
+    runs_up = np.where(forward, h, reverse)[order]        # each face's copy that runs lo -> hi
+    runs_down = np.where(forward, reverse, h)[order]
+    twin = np.empty(6 * m, dtype=np.int64)
+    twin[runs_up] = runs_down[following]
+    twin[runs_down[following]] = runs_up
+    return np.concatenate([faces, faces[:, [0, 2, 1]]]), twin
+
+
+def _glued(vertices, faces):
+    """(faces (m', 3), twin (3m',), edge id (3m',), edges (E, 2), area weight) of the triangulation the
+    flips start from (module docstring): the mesh oriented, or its tufted cover."""
+    edge_id, edges, forward = _edges(faces)
+    m = faces.shape[0]
+    if np.bincount(edge_id).max(initial=0) <= 2:
+        reverse = _orientation(edge_id, forward, m)
+        if reverse is not None:
+            oriented = np.where(reverse[:, None], faces[:, [0, 2, 1]], faces)
+            edge_id, _, forward = _edges(oriented)
+            return oriented, _twins_by_edge(edge_id, forward), edge_id, edges, 1.0
+    cover, twin = _tufted_cover(vertices, faces, edge_id, forward)
+    m3 = 3 * m
+    f, i = np.arange(m3) // 3, np.arange(m3) % 3
+    cover_ids = np.concatenate([edge_id, edge_id[3 * f + (2 - i)]])
+    return cover, twin, cover_ids, edges, 0.5
 
 
 def _area(l0, l1, l2):
@@ -112,16 +209,13 @@ def _diagonal(l_ab, l_bc, l_ca, l_ad, l_db):
 def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
     """The intrinsic Delaunay triangulation of a triangle mesh (``vertices`` (n, 3), ``faces`` (m, 3)):
     an :class:`IntrinsicTriangulation` whose every interior edge has opposite angles summing to at most
-    pi (up to ``tolerance`` in the cotangents' sum), reached by flips of the input's edges.
-
-    Edges on the boundary, and edges whose two faces run along them the same way (inconsistent
-    orientation), are never flipped."""
+    pi (up to ``tolerance`` in the cotangents' sum), reached by flips of the input's edges, glued as
+    the module docstring says. Boundary edges are never flipped (the tufted cover has none)."""
     V, F = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    F, twin, ids, edges, area_weight = _glued(V, F)
     m = F.shape[0]
-    twin, edge_id, edges = _halfedges(F)
     origin = F.ravel().copy()
     L = np.linalg.norm(V[np.roll(F, -1, axis=1)] - V[F], axis=2).ravel()
-    ids = edge_id.copy()
     next_id = edges.shape[0]
     flips = []
     for _ in range(_MAX_ROUNDS):
@@ -132,8 +226,7 @@ def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
         h, t, cot = h[bad], t[bad], cot[bad]
         f, g = h // 3, t // 3
         i, j = h % 3, t % 3
-        # two faces that share a second edge, or one face on both sides: not flipped
-        ok = (f != g) & (twin[3 * f + (i + 1) % 3] // 3 != g) & (twin[3 * f + (i + 2) % 3] // 3 != g)
+        ok = f != g             # one face on both sides (round a vertex of degree 1): isosceles, never flipped
         h, t, f, g, i, j, cot = h[ok], t[ok], f[ok], g[ok], i[ok], j[ok], cot[ok]
         if h.size == 0:
             break
@@ -168,8 +261,15 @@ def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
         new_twin[3 * f + 1], new_twin[3 * g + 1] = 3 * g + 1, 3 * f + 1
         origin, L, ids, twin = new_origin, new_L, new_ids_all, new_twin
     else:
-        raise RuntimeError(f"expected the intrinsic edge flips to end, got {_MAX_ROUNDS} rounds")
-    return IntrinsicTriangulation(origin.reshape(m, 3), L.reshape(m, 3), ids.reshape(m, 3), edges, flips)
+        a, b = origin[h[0]], origin[3 * (h[0] // 3) + (h[0] + 1) % 3]
+        raise MeshError(f"expected the intrinsic edge flips to end, got {_MAX_ROUNDS} rounds still flipping (an edge "
+                        f"between vertices {a} and {b}); triangulation='mesh' solves on the mesh's own triangles")
+    if not np.all(np.isfinite(L)):
+        bad = int(np.flatnonzero(~np.isfinite(L))[0]) // 3
+        raise MeshError(f"expected finite intrinsic edge lengths, got a non-finite one in the triangle on vertices "
+                        f"{sorted(set(origin[3 * bad:3 * bad + 3].tolist()))} after the flips; triangulation='mesh' "
+                        "solves on the mesh's own triangles")
+    return IntrinsicTriangulation(origin.reshape(m, 3), L.reshape(m, 3), ids.reshape(m, 3), edges, flips, area_weight)
 
 
 def flat_layout(lengths):

@@ -41,8 +41,10 @@ class Mesh:
         2 for triangles, 3 for tetrahedra.
 
     Vertices that no element references are kept (their distance is +inf), so the
-    user's vertex indices are never renumbered. The arrays are copies of the input and
-    read-only, so what is derived from them once (volumes, :meth:`components`) stays true.
+    user's vertex indices are never renumbered. Triangles may meet at non-manifold edges (three or
+    more faces on one edge) and be oriented either way: the operators do not need a manifold. The
+    arrays are copies of the input and read-only, so what is derived from them once (volumes,
+    :meth:`components`) stays true.
     """
 
     element_weights = None
@@ -89,8 +91,6 @@ class Mesh:
         self._elements = _read_only(T)
         self.element_dim = T.shape[1] - 1
         self._element_volumes = _read_only(self._checked_volumes())
-        if self.element_dim == 2:
-            self._check_manifold_edges()
         self._components = None
         self._sha256 = None
         self._warn_duplicates()
@@ -166,20 +166,6 @@ class Mesh:
             raise MeshError(f"expected non-degenerate elements, got {bad.size} {what} {kind}(s) (first: {kind} "
                             f"{bad[0]} = {self.elements[bad[0]].tolist()}){fix}")
         return vol
-
-    def _check_manifold_edges(self):
-        F = self.elements
-        a, b = F.T.ravel(), F[:, [1, 2, 0]].T.ravel()       # edges (0, 1) of every face, then (1, 2), then (2, 0)
-        key = np.minimum(a, b) * self.n_vertices + np.maximum(a, b)
-        ordered = np.sort(key)
-        if not (ordered[2:] == ordered[:-2]).any():
-            return
-        _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-        k = np.flatnonzero(counts[inv] > 2)[0]
-        raise MeshError(
-            f"expected a manifold mesh (at most 2 faces per edge), got {np.count_nonzero(counts > 2)} non-manifold "
-            f"edges (first: edge {sorted([a[k].item(), b[k].item()])} shared by {counts[inv[k]]} faces); "
-            "load_mesh(path, repair=True) or warp_regdist.repair_mesh(vertices, faces) cuts the mesh along them")
 
     def components(self):
         """(n,) int64 connected-component label of every vertex, read-only; unreferenced vertices get -1.

@@ -169,7 +169,8 @@ def build_operators(mesh, triangulation="mesh"):
     ``triangulation``: "mesh" builds them on the mesh's own elements; "intrinsic" on the intrinsic
     Delaunay triangulation of a triangle mesh's vertices (:mod:`warp_regdist.geometry.intrinsic`):
     the same vertices and surface, faces known by their edge lengths and laid out flat, so the
-    gradients are 2-vectors in each face's own frame (z = 0). The element volumes are multiplied by
+    gradients are 2-vectors in each face's own frame (z = 0); on a non-manifold mesh they are those
+    of its tufted cover, each face at half its area. The element volumes are multiplied by
     ``mesh.element_weights`` where it has them (point clouds, always on their own elements).
     """
     if triangulation not in ("mesh", "intrinsic"):
@@ -183,7 +184,7 @@ def build_operators(mesh, triangulation="mesh"):
             return build_operators(mesh)
         m = T.faces.shape[0]
         basis, vol = element_gradients(flat_layout(T.lengths).reshape(-1, 3), np.arange(3 * m).reshape(m, 3))
-        return assemble_operators(T.faces, basis, vol, n, T.lengths.max(axis=1), intrinsic=T)
+        return assemble_operators(T.faces, basis, vol * T.area_weight, n, T.lengths.max(axis=1), intrinsic=T)
     T = mesh.elements
     basis, vol = element_gradients(mesh.vertices, T)
     if mesh.element_weights is not None:

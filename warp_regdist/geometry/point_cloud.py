@@ -78,9 +78,6 @@ class PointCloud(Mesh):
     def element_weights(self):
         return self._weights
 
-    def _check_manifold_edges(self):
-        """A point cloud's triangle set overlaps itself: nothing to check."""
-
     def __repr__(self):
         return f"PointCloud({self.n_vertices} points, {self.n_elements} local triangles)"
 

@@ -291,6 +291,7 @@ def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
     mu = mu_hat A^(1 + 1/d) / m, A = sum(volume). On intrinsic operators the kernel runs on every face
     laid out flat from its lengths, and the derivative goes back through the layout and the flips."""
     intrinsic = ops.intrinsic
+    weight = 1.0 if intrinsic is None else intrinsic.area_weight      # a_e of the operators / a_e of the layout
     if intrinsic is None:
         x, T, uc, wc = mesh.vertices, mesh.elements, u, w
     else:
@@ -307,10 +308,11 @@ def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
                                                    wp.array(uc, dtype=wp.float64, device="cpu"),
                                                    wp.array(wc, dtype=wp.float64, device="cpu")], outputs=out)
     dirichlet, barrier, A = (float(o.numpy().sum()) for o in out[1:])
+    dirichlet, A = weight * dirichlet, weight * A
     s = A ** (1.0 / d)
     alpha, mu = alpha_hat * s, mu_hat * A * s / m
     dA = (alpha * dirichlet / d + mu * barrier * (1.0 + 1.0 / d)) / A   # through alpha(A) and mu(A)
-    seeds = (1.0, alpha, mu, dA)
+    seeds = (weight, weight * alpha, mu, weight * dA)
     tape.backward(grads={o: wp.full(m, c, dtype=wp.float64, device="cpu") for o, c in zip(out, seeds)})
     grad = -xw.grad.numpy()
     if intrinsic is None:
