@@ -115,3 +115,57 @@ def test_split_components_gives_each_component_as_a_mesh():
                                          r"split_components\(mesh\) gives each"):
         wrd.AllPairsSolver(wrd.Mesh(V[1:], F - 1))
 
+
+def _cracked_sphere(gap):
+    """An icosphere (642 vertices) whose northern faces use copies of the 48 equator vertices, each moved
+    ``gap`` (times the unit radius) in a random direction: a closed surface cracked along the equator."""
+    s = trimesh.creation.icosphere(subdivisions=3)
+    V, F = s.vertices, s.faces
+    north = V[F].mean(axis=1)[:, 2] > 0
+    equator = np.intersect1d(np.unique(F[north]), np.unique(F[~north]))
+    offset = np.random.default_rng(0).standard_normal((len(equator), 3))
+    copies = V[equator] + gap * offset / np.linalg.norm(offset, axis=1, keepdims=True)
+    remap = np.arange(len(V))
+    remap[equator] = len(V) + np.arange(len(equator))
+    return s, np.vstack([V, copies]), np.where(north[:, None], remap[F], F)
+
+
+@pytest.mark.parametrize("gap", [1e-15, 3e-5])
+def test_a_crack_warns_on_loading_and_repair_welds_it(tmp_path, gap):
+    sphere, V, F = _cracked_sphere(gap)
+    path = tmp_path / "cracked.obj"
+    with open(path, "w") as f:
+        f.writelines(f"v {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
+        f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F)
+    with pytest.warns(wrd.MeshWarning, match=r"^48 pairs of boundary vertices lie within 0.001 of the bounding box "
+                                             r"diagonal of each other \(first: \d+ and \d+, [0-9.e-]+ apart\): the "
+                                             r"surface is cracked there and no distance crosses the crack; "
+                                             r"load_mesh\(path, repair=True\) or warp_regdist.repair_mesh\(vertices, "
+                                             r"faces\) welds them$"):
+        cracked = wrd.load_mesh(path)
+    assert np.unique(cracked.components()).size == 2
+    with pytest.warns(wrd.MeshWarning, match=r"cracked\.obj: welded 48 boundary vertices onto others across cracks "
+                                             r"\(within 0.001 of the bounding box diagonal\); 1 connected component"):
+        mesh = wrd.load_mesh(path, repair=True)
+    assert mesh.n_vertices == 642 and np.array_equal(mesh.vertices, sphere.vertices)   # welded onto the originals
+    assert np.array_equal(mesh.faces, sphere.faces)
+    whole = wrd.DistanceSolver(wrd.Mesh(sphere.vertices, sphere.faces), 0.05).solve([0]).distance
+    u = wrd.DistanceSolver(mesh, 0.05).solve([0]).distance[mesh.input_index]
+    np.testing.assert_array_equal(u[:642], whole)
+    assert np.all(np.isfinite(u)) and np.abs(u[642:] - whole[mesh.input_index[642:]]).max() == 0.0
+
+
+def test_close_vertices_that_are_no_crack_are_left_alone():
+    # a slit as wide as a fifth of its edges, and an interior edge 1e-6 long: neither is a crack
+    s = trimesh.creation.icosphere(subdivisions=3)
+    _, V, F = _cracked_sphere(0.0)
+    north = np.flatnonzero(V[:642, 2] > 0.5)
+    V = V.copy()
+    edge = np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).min()
+    V[642:] = V[642:] + 0.2 * edge * V[642:] / np.linalg.norm(V[642:], axis=1, keepdims=True)   # raised by 0.2 edge
+    V[north[1]] = V[north[0]] + 1e-6 * (V[north[1]] - V[north[0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wrd.MeshWarning)
+        wrd.Mesh(V, F)
+    mesh, done = wrd.repair_mesh(V, F)
+    assert done.welded_vertices == 0 and mesh.n_vertices == len(V) == len(s.vertices) + 48

@@ -27,6 +27,10 @@ class Tolerances:
         A source point whose barycentric coordinate on a face is <= this lies on that face's edge
         (or vertex, when 1 - point_snap <= its largest coordinate) and is moved there: the triangles
         it would cut off would be slivers (see :func:`warp_regdist.surface_points`).
+    weld : float
+        Two boundary vertices at most this times the bounding box diagonal apart (and closer than a
+        tenth of the boundary edges at either) are the two sides of a crack: a load warns, and
+        :func:`warp_regdist.repair_mesh` welds them (:func:`~warp_regdist.geometry.mesh.near_duplicate_vertices`).
     curve_snap : float
         A curve's crossing of an edge within this fraction of the edge from a vertex moves to the
         vertex (the curve then passes through it): the cuts would leave slivers and obtuse angles
@@ -35,6 +39,7 @@ class Tolerances:
 
     degenerate_element: float = 1e-12
     point_snap: float = 1e-3
+    weld: float = 1e-3
     curve_snap: float = 0.2
 
     @contextlib.contextmanager

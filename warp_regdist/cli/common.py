@@ -239,8 +239,8 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
 def repair_option(p: argparse.ArgumentParser) -> None:
     """--repair, for the commands that read a triangle mesh."""
     p.add_argument("--repair", action="store_true",
-                   help="merge vertices at one position, drop degenerate faces and cut non-manifold edges (a "
-                   "warning says what changed); vertex indices and outputs stay those of the file")
+                   help="merge vertices at one position, weld cracks, drop degenerate faces and cut non-manifold "
+                   "edges (a warning says what changed); vertex indices and outputs stay those of the file")
 
 
 def load(path: str, repair: bool = False):

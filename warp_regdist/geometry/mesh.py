@@ -17,7 +17,8 @@ import scipy.sparse.csgraph as csgraph
 from ..errors import MeshError, MeshWarning
 from ..tolerances import tolerances
 
-__all__ = ["Mesh", "boundary_vertices", "boundary_faces", "boundary_surface", "duplicate_vertices"]
+__all__ = ["Mesh", "boundary_vertices", "boundary_faces", "boundary_surface", "duplicate_vertices",
+           "near_duplicate_vertices"]
 
 
 class Mesh:
@@ -107,6 +108,17 @@ class Mesh:
                           f"{a} and {b}): the mesh is cut there and no distance crosses the cut; merge them with "
                           "warp_regdist.merge_duplicate_vertices(mesh) or load_mesh(path, repair=True)",
                           MeshWarning, stacklevel=3)
+        if self.element_dim != 2 or self.element_weights is not None:
+            return
+        near = near_duplicate_vertices(self.vertices, self.elements)
+        near = near[np.any(self.vertices[near[:, 0]] != self.vertices[near[:, 1]], axis=1)]
+        if len(near):
+            a, b = near[0]
+            gap = np.linalg.norm(self.vertices[a] - self.vertices[b])
+            warnings.warn(f"{len(near)} pairs of boundary vertices lie within {tolerances.weld:g} of the bounding box "
+                          f"diagonal of each other (first: {a} and {b}, {gap:.3g} apart): the surface is cracked "
+                          "there and no distance crosses the crack; load_mesh(path, repair=True) or "
+                          "warp_regdist.repair_mesh(vertices, faces) welds them", MeshWarning, stacklevel=3)
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -224,6 +236,42 @@ def duplicate_vertices(vertices, used=None):
     lead = np.minimum.reduceat(ranked, np.flatnonzero(starts))[group]     # the smallest index at each position
     dup = ranked != lead
     return np.stack([lead[dup], ranked[dup]], axis=1).astype(np.int64)
+
+
+def near_duplicate_vertices(vertices, faces):
+    """(p, 2) int64 pairs (i, j), i < j, of *boundary* vertices of a triangle list (vertices (n, 3),
+    faces (m, 3)) that a crack separates: not joined by an edge, at most ``tolerances.weld`` times the
+    bounding box diagonal apart, and closer than a tenth of the shortest boundary edge at either.
+
+    Boundary edges are those of one face. Interior vertices are never paired: two close vertices
+    inside the surface are a short edge, not a crack."""
+    from scipy.spatial import cKDTree
+
+    V, F = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    n = len(V)
+    a, b = F.ravel(), np.roll(F, -1, axis=1).ravel()
+    keys = np.sort(np.minimum(a, b) * n + np.maximum(a, b))
+    alone = np.ones(keys.size, dtype=bool)
+    alone[1:] &= keys[1:] != keys[:-1]
+    alone[:-1] &= keys[:-1] != keys[1:]
+    if not alone.any():
+        return np.zeros((0, 2), dtype=np.int64)
+    rim = np.stack([keys[alone] // n, keys[alone] % n], axis=1)
+    on_rim = np.unique(rim)
+    shortest = np.full(len(V), np.inf)
+    lengths = np.linalg.norm(V[rim[:, 0]] - V[rim[:, 1]], axis=1)
+    np.minimum.at(shortest, rim[:, 0], lengths)
+    np.minimum.at(shortest, rim[:, 1], lengths)
+    radius = tolerances.weld * float(np.linalg.norm(V[F.ravel()].max(axis=0) - V[F.ravel()].min(axis=0)))
+    pairs = cKDTree(V[on_rim]).query_pairs(radius, output_type="ndarray")
+    if pairs.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    i, j = np.sort(on_rim[pairs], axis=1).T
+    gap = np.linalg.norm(V[i] - V[j], axis=1)
+    close = gap < 0.1 * np.minimum(shortest[i], shortest[j])
+    joined = np.isin(i * n + j, keys)
+    keep = close & ~joined
+    return np.stack([i[keep], j[keep]], axis=1).astype(np.int64)
 
 
 def _mix(z):

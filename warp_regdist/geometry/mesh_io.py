@@ -46,8 +46,8 @@ def load_mesh(path, repair=False):
     see :func:`_read_volume_file` for which cells are used. Raises :class:`MeshError`
     for a missing or unreadable file and for every defect :class:`Mesh` checks.
 
-    ``repair=True`` (triangle meshes) merges vertices at one position, drops degenerate faces and
-    cuts non-manifold edges (:func:`~warp_regdist.repair_mesh`), with a :class:`~warp_regdist.MeshWarning`
+    ``repair=True`` (triangle meshes) merges vertices at one position, welds cracks, drops degenerate
+    faces and cuts non-manifold edges (:func:`~warp_regdist.repair_mesh`), with a :class:`~warp_regdist.MeshWarning`
     that says what it changed; the mesh's ``input_index`` maps the file's vertices to its own.
     """
     path = os.fsdecode(os.fspath(path))

@@ -1,5 +1,5 @@
-"""Meshes as users have them, made usable: vertices at one position merged, degenerate faces dropped,
-non-manifold edges cut, components split.
+"""Meshes as users have them, made usable: vertices at one position merged, cracks welded, degenerate
+faces dropped, non-manifold edges cut, components split.
 
 :func:`repair_mesh` returns the new :class:`~warp_regdist.Mesh`, whose ``input_index`` (n_in,) is the
 new vertex of every input vertex (so that values computed on it read back in the input's numbering as
@@ -12,21 +12,25 @@ import dataclasses
 import warnings
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
 
 from ..errors import MeshError
 from ..tolerances import tolerances
-from .mesh import Mesh, duplicate_vertices
+from .mesh import Mesh, duplicate_vertices, near_duplicate_vertices
 
 __all__ = ["Repair", "repair_mesh", "merge_duplicate_vertices", "split_components"]
 
 
 @dataclasses.dataclass(frozen=True)
 class Repair:
-    """What :func:`repair_mesh` changed: vertices merged into another at the same position, faces
-    dropped (a repeated corner, or zero area), non-manifold edges cut (the faces beyond a consistently
-    oriented pair detached along the edge, with copies of its two vertices), and the components left."""
+    """What :func:`repair_mesh` changed: vertices merged into another at the same position, boundary
+    vertices welded onto another across a crack, faces dropped (a repeated corner, or zero area),
+    non-manifold edges cut (the faces beyond a consistently oriented pair detached along the edge,
+    with copies of its two vertices), and the components left."""
 
     merged_vertices: int = 0
+    welded_vertices: int = 0
     dropped_faces: int = 0
     cut_edges: int = 0
     components: int = 1
@@ -35,6 +39,9 @@ class Repair:
         parts = []
         if self.merged_vertices:
             parts.append(f"merged {self.merged_vertices} vertices into others at the same position")
+        if self.welded_vertices:
+            parts.append(f"welded {self.welded_vertices} boundary vertices onto others across cracks (within "
+                         f"{tolerances.weld:g} of the bounding box diagonal)")
         if self.dropped_faces:
             parts.append(f"dropped {self.dropped_faces} degenerate faces (a repeated corner or zero area)")
         if self.cut_edges:
@@ -44,17 +51,21 @@ class Repair:
         return "; ".join(parts) + f"; {self.components} connected component(s)"
 
 
-def repair_mesh(vertices, faces):
+def repair_mesh(vertices, faces, cut=True):
     """A triangle :class:`~warp_regdist.Mesh` from ``vertices`` (n, 3) and ``faces`` (m, 3) that may have
-    vertices at one position, degenerate faces and non-manifold edges, and the :class:`Repair` made.
+    vertices at one position, cracks, degenerate faces and non-manifold edges, and the :class:`Repair` made.
 
     In this order: vertices at exactly one position are merged into the first of them (kept vertices
-    keep their order); faces with a repeated corner or an area <= ``tolerances.degenerate_element``
-    times their longest edge squared are dropped; each edge with more than two faces keeps one pair of
-    faces that run along it in opposite directions (the first such pair, else its first two faces), and
-    every other face at the edge gets its own copies of the edge's two vertices (appended), so that no
-    distance crosses the edge between them. Vertices referenced by no face are kept (+inf distance).
-    The mesh's ``input_index`` maps every input vertex to its vertex of the result.
+    keep their order); boundary vertices on the two sides of a crack
+    (:func:`~warp_regdist.geometry.mesh.near_duplicate_vertices`, ``tolerances.weld``) are welded onto
+    the first of them, where it lies; faces with a repeated corner or an area
+    <= ``tolerances.degenerate_element`` times their longest edge squared are dropped; with ``cut``,
+    each edge with more than two faces keeps one pair of faces that run along it in opposite
+    directions (the first such pair, else its first two faces), and every other face at the edge gets
+    its own copies of the edge's two vertices (appended), so that no distance crosses the edge
+    between them (``cut=False`` keeps such edges: the solvers compute on them). Vertices referenced by
+    no face are kept (+inf distance). The mesh's ``input_index`` maps every input vertex to its vertex
+    of the result.
     """
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces)
@@ -70,15 +81,19 @@ def repair_mesh(vertices, faces):
     pairs = duplicate_vertices(V, used)
     keep, index = _merge_map(len(V), pairs)
     V, F = V[keep], index[F]
+    welds = _chains_to_first(len(V), near_duplicate_vertices(V, F))
+    keep, weld_index = _merge_map(len(V), welds)
+    V, F, index = V[keep], weld_index[F], weld_index[index]
     degenerate = _degenerate(V, F)
     F = F[~degenerate]
-    V, F, cut = _cut_non_manifold_edges(V, F)
+    V, F, cut = _cut_non_manifold_edges(V, F) if cut else (V, F, 0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # the cut's copies of vertices are meant to lie where their originals do
         mesh = Mesh(V, F)
     mesh.input_index = index.astype(np.int64)
     labels = mesh.components()
-    repair = Repair(merged_vertices=int(len(pairs)), dropped_faces=int(np.count_nonzero(degenerate)),
+    repair = Repair(merged_vertices=int(len(pairs)), welded_vertices=int(len(welds)),
+                    dropped_faces=int(np.count_nonzero(degenerate)),
                     cut_edges=cut, components=int(np.unique(labels[labels >= 0]).size))
     return mesh, repair
 
@@ -90,6 +105,20 @@ def _merge_map(n, pairs):
     lead[pairs[:, 1]] = pairs[:, 0]
     keep = lead == np.arange(n)
     return keep, (np.cumsum(keep) - 1)[lead].astype(np.int64)
+
+
+def _chains_to_first(n, pairs):
+    """(p, 2) pairs (lead, j): every vertex of a group joined by ``pairs`` (k, 2) paired with the group's
+    smallest index, as :func:`_merge_map` takes them."""
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    labels = csgraph.connected_components(graph, directed=False)[1]
+    members = np.unique(pairs)
+    lead = np.full(labels.max() + 1, n)
+    np.minimum.at(lead, labels[members], members)
+    lead = lead[labels[members]]
+    return np.stack([lead[members != lead], members[members != lead]], axis=1).astype(np.int64)
 
 
 def _repeated_corner(F):
