@@ -298,3 +298,13 @@ def test_gradients_go_through_the_tufted_cover():
 
     fd = (value(1e-7) - value(-1e-7)) / 2e-7
     assert (g.vertices * D).sum() == pytest.approx(fd, rel=1e-5)
+
+
+def test_flips_that_do_not_end_are_one_error_naming_the_place_and_the_option(cat80, monkeypatch):
+    import warp_regdist.geometry.intrinsic as intrinsic
+
+    monkeypatch.setattr(intrinsic, "_MAX_ROUNDS", 1)           # cat80 takes more rounds than one
+    with pytest.raises(wrd.MeshError, match=r"^expected the intrinsic edge flips to end, got 1 rounds still flipping "
+                                            r"\(an edge between vertices \d+ and \d+\); triangulation='mesh' solves on "
+                                            r"the mesh's own triangles$"):
+        wrd.DistanceSolver(cat80, 0.05)
