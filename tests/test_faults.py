@@ -402,3 +402,33 @@ def test_allpairs_progress_is_one_line_per_window_with_every_stop_test(sphere_fi
     assert all("max residual/tolerance " in line and "change to come " in line and "gradient excess " in line
                for line in lines)
     assert "change to come inf/0.0035 (holding it back)" in lines[0]
+
+
+@pytest.mark.parametrize("suffix, removed", [(".npy", ["rows"]), (".zarr", ["rows"]), (".npy", ["rows", "symmetric"])])
+def test_the_advised_recovery_of_a_damaged_finished_matrix_gives_the_undamaged_one(sphere_file, tmp_path, capsys,
+                                                                                     suffix, removed):
+    out = tmp_path / f"D{suffix}"
+    command = ["matrix", str(sphere_file), "--sources", "all", "--output", str(out), "--chunk", "16", "--quiet"]
+    assert main(command) == 0
+    capsys.readouterr()
+    if suffix == ".npy":
+        whole = np.load(out)
+        data = bytearray(out.read_bytes())
+        data[128 + 8 * (130 * 162 + 7) + 3] ^= 0x10       # row 130 (block 8), vertex 7
+        out.write_bytes(bytes(data))
+    else:
+        import zarr
+
+        array = zarr.open_array(store=str(out), mode="r+")
+        whole = array[:]
+        array[130, 7] = whole[130, 7] * 1.01               # a block changed by hand
+    assert main(command) == 2
+    err = capsys.readouterr().err.strip()
+    marker = str(out) + ".progress/rows-0000008"
+    assert len(err.splitlines()) == 1 and err.endswith(f"remove {marker!r} to solve that block again")
+    for kind in removed:
+        os.remove(str(out) + f".progress/{kind}-0000008")
+    assert main(command) == 0
+    D = np.load(out) if suffix == ".npy" else zarr.open_array(store=str(out), mode="r")[:]
+    assert np.array_equal(D, D.T)
+    np.testing.assert_allclose(D, whole, rtol=0, atol=1e-12 * whole.max())

@@ -14,9 +14,13 @@ the same path is refused.
 
 Symmetrization (D[r, src[c]] and D[c, src[r]] replaced by their mean) works block by block on
 the stored rows: while solving, each block's source columns are also written, tile-major,
-into ``source_columns.npy`` (S, (k, k) in (chunk, chunk) tiles, removed at the end), and row
-block I is then rewritten from S alone, D[I, src] = (S[I, :] + S[:, I]^T) / 2, so redoing it
-is harmless. Memory: a (chunk, n) row block and two (chunk, k) strips of S.
+into ``source_columns.npy`` (S, (k, k) in (chunk, chunk) tiles, removed at the end; a ``tile``
+marker per block says its strip is there), and row block I is then rewritten from S,
+D[I, src[J]] = (S[I, J] + S[J, I]^T) / 2, so redoing it is harmless. A block J whose strip is
+not in S (solved in an earlier run, whose S was removed once every block was symmetric) holds
+final values, so D[I, src[J]] = D[J, src[I]]^T: a block solved again, its rows marker removed
+after damage, is symmetrized against the others. Memory: a (chunk, n) row block and two
+(chunk, k) strips of S.
 """
 
 from __future__ import annotations
@@ -235,6 +239,7 @@ class DiskRows:
 
         S is a (blocks, blocks, chunk, chunk) ``.npy``: tile (i, j) = S[rows of block i, columns of block j].
         """
+        self._mark("symmetric", block, done=False)     # its rows are solved again, unsymmetrized
         self._write_rows(block, rows)
         if sources is not None:
             nb, c = self.blocks, self.chunk
@@ -243,30 +248,42 @@ class DiskRows:
             strip = np.zeros((c, nb * c), dtype=self.dtype)
             strip[:len(rows), :len(sources)] = rows[:, sources]
             tiles.write(block * nb * c * c, strip.reshape(c, nb, c).transpose(1, 0, 2))
+            self._mark("tile", block)
         self._mark("rows", block, rows=rows)
 
     def symmetrize(self, sources):
-        """Average the pairs of source columns, block by block from S; S is removed when all are done."""
+        """Average the pairs of source columns, block by block from S (the module doc); S and its tile
+        markers are removed when all blocks are done."""
         k, nb, c = len(sources), self.blocks, self.chunk
         todo = [b for b in range(nb) if not self._done("symmetric", b)]
-        if todo:
-            tiles = NpyFile(self.tiles_path)
-            if tiles.shape != (nb, nb, c, c) or tiles.dtype != self.dtype:
+        stored = np.array([self._done("tile", b) for b in range(nb)])
+        if todo and stored.any():
+            tiles = NpyFile(self.tiles_path) if os.path.exists(self.tiles_path) else None
+            if tiles is None or tiles.shape != (nb, nb, c, c) or tiles.dtype != self.dtype:
+                found = "none" if tiles is None else f"shape {tiles.shape} and dtype {tiles.dtype}"
                 raise ValueError(f"expected {self.tiles_path!r} of shape {(nb, nb, c, c)} and dtype {self.dtype}, "
-                                 f"got shape {tiles.shape} and dtype {tiles.dtype}; remove {self.path!r} and its "
-                                 "progress record")
+                                 f"got {found}; remove {self.path!r} and its progress record")
         for block in todo:
             lo, hi = block * c, min(k, (block + 1) * c)
-            s_rows = tiles.read(block * nb * c * c, nb * c * c).reshape(nb, c, c).transpose(1, 0, 2)
-            s_cols = np.concatenate([tiles.read((j * nb + block) * c * c, c * c).reshape(c, c) for j in range(nb)])
-            rows = average_source_pairs(self._rows(lo, hi), sources, s_rows.reshape(c, -1)[:hi - lo, :k],
-                                        s_cols[:k, :hi - lo])
+            rows = self._rows(lo, hi)
+            if stored[block]:
+                s_rows = tiles.read(block * nb * c * c, nb * c * c).reshape(nb, c, c).transpose(1, 0, 2)
+                s_cols = np.concatenate([tiles.read((j * nb + block) * c * c, c * c).reshape(c, c) for j in range(nb)])
+                pairs = np.repeat(stored, c)[:k]                       # the source columns whose strips are in S
+                rows[:, sources[pairs]] = 0.5 * (s_rows.reshape(c, -1)[:hi - lo, :k][:, pairs]
+                                                 + s_cols[:k, :hi - lo][pairs].T)
+            for j in np.flatnonzero(~stored):                        # final values: the transpose of block j's
+                if j != block:
+                    j0, j1 = j * c, min(k, (j + 1) * c)
+                    rows[:, sources[j0:j1]] = self._rows(j0, j1)[:, sources[lo:hi]].T
             self._mark("rows", block, done=False)  # a write cut short is then solved again
             self._write_rows(block, rows)
             self._mark("rows", block, rows=rows)
             self._mark("symmetric", block)
         if os.path.exists(self.tiles_path):
             os.remove(self.tiles_path)
+        for block in np.flatnonzero(stored):
+            self._mark("tile", block, done=False)
 
     def result(self):
         """The Zarr array, or the ``.npy`` as a read-write memory map."""
