@@ -29,8 +29,8 @@ class Tolerances:
         it would cut off would be slivers (see :func:`warp_regdist.surface_points`).
     weld : float
         Two boundary vertices at most this times the bounding box diagonal apart (and closer than a
-        tenth of the boundary edges at either) are the two sides of a crack: a load warns, and
-        :func:`warp_regdist.repair_mesh` welds them (:func:`~warp_regdist.geometry.mesh.near_duplicate_vertices`).
+        tenth of the boundary edges at either) are the two sides of a crack: a load warns, and the
+        repair (:func:`warp_regdist.repair_mesh`) welds them.
     curve_snap : float
         A curve's crossing of an edge within this fraction of the edge from a vertex moves to the
         vertex (the curve then passes through it): the cuts would leave slivers and obtuse angles

@@ -44,8 +44,8 @@ class Mesh:
     Vertices that no element references are kept (their distance is +inf), so the
     user's vertex indices are never renumbered. Triangles may meet at non-manifold edges (three or
     more faces on one edge) and be oriented either way: the operators do not need a manifold. The
-    arrays are copies of the input and read-only, so what is derived from them once (volumes,
-    :meth:`components`) stays true.
+    arrays are copies of the input and read-only, so that what is derived from them once (the
+    volumes, :meth:`components`) stays true.
     """
 
     element_weights = None
