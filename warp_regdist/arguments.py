@@ -49,47 +49,63 @@ def parse_workers(workers):
 def parse_device(device):
     """The Warp device named ``device`` (None: Warp's default), initializing Warp first.
 
-    ValueError naming the available devices for an unknown name. Warp's native start-up
-    writes "Could not find or load the NVIDIA CUDA driver" to stderr on every machine
-    without one; that line is dropped unless ``device`` names a CUDA device, where it
-    explains why the device is missing.
+    ValueError naming the available devices for an unknown name. What Warp's native code writes
+    to stderr meanwhile (file descriptor 2) is captured: "Could not find or load the NVIDIA CUDA
+    driver", which Warp writes on every machine without one, is dropped, or, when ``device`` is a
+    CUDA device that is missing, becomes the reason in the error; the driver calls that then fail
+    are dropped; anything else is written back.
     """
-    _init_warp(keep_cuda_warning=str(device).startswith("cuda"))
-    try:
-        return wp.get_device(device)
-    except Exception:
-        names = [str(d) for d in wp.get_devices()]
-        raise ValueError(f"expected a Warp device among {names}, got {device!r}") from None
-
-
-def _init_warp(keep_cuda_warning):
-    """``wp.init()``; unless ``keep_cuda_warning``, its native stderr output (file descriptor 2)
-    is captured and written back without the CUDA-driver line. No-op once Warp is initialized."""
-    context = getattr(getattr(wp, "_src", None), "context", None)  # Warp's runtime; absent: assume not started
-    if getattr(context, "runtime", None) is not None:
-        return
-    if keep_cuda_warning:
-        wp.init()
-        return
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:  # no file descriptor 2 to redirect
-        wp.init()
-        return
-    with tempfile.TemporaryFile() as captured:
-        os.dup2(captured.fileno(), 2)
+    with _native_stderr() as native:
+        _init_warp()
         try:
-            wp.init()
-        finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-        captured.seek(0)
-        kept = b"".join(line for line in captured.read().splitlines(keepends=True)
-                        if _CUDA_DRIVER_WARNING not in line)
+            found = wp.get_device(device)
+        except Exception:
+            found = None
+        names = [str(d) for d in wp.get_devices()]
+    lines = native.captured.splitlines(keepends=True)
+    driver = [line for line in lines if _CUDA_DRIVER_WARNING in line]
+    if found is None:
+        reason = f" (Warp: {_CUDA_DRIVER_WARNING.decode()})" if driver and str(device).startswith("cuda") else ""
+        raise ValueError(f"expected a Warp device among {names}, got {device!r}{reason}")
+    kept = b"".join(line for line in lines if _CUDA_DRIVER_WARNING not in line
+                    and not (driver and line.startswith(b"Warp CUDA error")))
     if kept:
         os.write(2, kept)
+    return found
+
+
+def _init_warp():
+    """``wp.init()``; a no-op once Warp is initialized."""
+    context = getattr(getattr(wp, "_src", None), "context", None)  # Warp's runtime; absent: assume not started
+    if getattr(context, "runtime", None) is None:
+        wp.init()
+
+
+class _native_stderr:
+    """Within the block, file descriptor 2 goes to a temporary file; the bytes written are
+    ``captured`` after it (nothing is captured where there is no descriptor 2)."""
+
+    def __enter__(self):
+        sys.stderr.flush()
+        self.captured = b""
+        try:
+            self.saved = os.dup(2)
+        except OSError:
+            self.saved = None
+            return self
+        self.file = tempfile.TemporaryFile()
+        os.dup2(self.file.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc):
+        if self.saved is None:
+            return
+        sys.stderr.flush()
+        os.dup2(self.saved, 2)
+        os.close(self.saved)
+        self.file.seek(0)
+        self.captured = self.file.read()
+        self.file.close()
 
 
 def read_csv_rows(path, row, what):

@@ -10,7 +10,10 @@ import tempfile
 import numpy as np
 
 from .common import (announce_compile, check_output, estimated_error, exit_status, load, repair_option,
-                     solver_options, subcommand, warn, warnings_to_stderr)
+                     solver_options, stop_word, subcommand, warn, warnings_to_stderr)
+
+
+LOCKED_OUTPUTS = ("output",)
 
 
 def add_parser(sub) -> None:
@@ -58,10 +61,16 @@ def add_parser(sub) -> None:
     solver_options(allpairs)
 
 
-def _allpairs_progress():
-    """A callback for ``all_pairs`` printing one stderr line per check window: every stop test against
+def _allpairs_progress(banner):
+    """A callback for ``all_pairs`` printing ``banner`` at the first iteration (so that a refusal of the
+    run's arguments is the only line), then one stderr line per check window: every stop test against
     its threshold."""
+    started = []
+
     def show(progress):
+        if not started:
+            started.append(True)
+            print(banner, file=sys.stderr, flush=True)
         if progress.checked:
             print(f"  {progress}", file=sys.stderr, flush=True)
 
@@ -78,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.checkpoint, (".npz",), "--checkpoint")
         if not args.restart:
             check_no_progress(args.checkpoint, args.resume, ("--checkpoint", "--resume ", "--restart"))
+    if args.restart and args.resume is not None and (args.checkpoint is None or os.path.abspath(args.checkpoint)
+                                                     == os.path.abspath(args.resume)):
+        raise ValueError(f"expected --restart (start over) or --resume {args.resume} (continue it), got both; "
+                         "--restart with --resume only lets a resumed run overwrite another --checkpoint")
     for flag, path in (("--resume", args.resume), ("--initial", args.initial)):
         if path is not None and not os.path.isfile(path):
             raise ValueError(f"expected {flag} as an existing checkpoint file, got {path!r} (no such file)")
@@ -92,11 +105,11 @@ def run(args: argparse.Namespace) -> int:
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         solver = AllPairsSolver(mesh, args.alpha_hat, device=args.device, dtype=args.dtype, workers=args.workers,
                                 options=AllPairsOptions(engine=args.engine))
-        if not args.quiet:
-            print(f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
+        banner = (f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
                   f"{solver.memory_bytes / 1e9:.2f} GB; a progress line every {solver.options.change_window} "
-                  "iterations", file=sys.stderr, flush=True)
-        result = solver.solve(callback=None if args.quiet else _allpairs_progress(), max_iterations=args.max_iterations,
+                  "iterations")
+        result = solver.solve(callback=None if args.quiet else _allpairs_progress(banner),
+                              max_iterations=args.max_iterations,
                               checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
                               resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)
     if not result.converged:
@@ -116,7 +129,7 @@ def _unconverged(result, args) -> str:
     """The warning for an unconverged ``result``: why it stopped and the command that continues it."""
     at_cap = not result.interrupted and result.iterations >= args.max_iterations
     if result.interrupted:
-        what = f"interrupted at ADMM iteration {result.iterations}: the matrix written is the current iterate"
+        what = f"{stop_word()} at ADMM iteration {result.iterations}: the matrix written is the current iterate"
     elif at_cap:
         what = f"the all-pairs ADMM did not converge in {result.iterations} iterations; the matrix written is approximate"
     else:

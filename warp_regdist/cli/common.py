@@ -7,6 +7,7 @@ import argparse
 import contextlib
 import os
 import re
+import signal
 import sys
 import warnings
 
@@ -29,13 +30,27 @@ exit status (the same for every subcommand):
        process that died, ...): one line 'warp-regdist: error: ...'
   130  interrupted (Ctrl-C): what was computed so far is kept as the
        subcommand's warning says (a second Ctrl-C stops at once)
+  143  terminated (SIGTERM, what batch schedulers send before a kill): as for 130,
+       the run stops at the end of its iteration and keeps its work
 """
 
 
+def stop_status() -> int:
+    """The exit status of a stopped run: 143 for SIGTERM, else 130 (Ctrl-C)."""
+    from ..solvers.interrupt import stopped_by
+
+    return 143 if stopped_by() == signal.SIGTERM else 130
+
+
+def stop_word() -> str:
+    """How a stopped run was stopped, for its messages: "terminated (SIGTERM)" or "interrupted"."""
+    return "terminated (SIGTERM)" if stop_status() == 143 else "interrupted"
+
+
 def exit_status(result) -> int:
-    """The exit status of a written result: 130 interrupted, 1 not converged (any column), else 0."""
+    """The exit status of a written result: 130 or 143 stopped, 1 not converged (any column), else 0."""
     if getattr(result, "interrupted", False):
-        return 130
+        return stop_status()
     return 0 if np.all(result.converged) else 1
 
 
@@ -226,7 +241,7 @@ def solve(mesh, sources, alpha_hat: float, device: str | None, dtype: str, verbo
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         result = solver.solve(sources, verbose=verbose, **(where or {}))
     if result.interrupted:
-        warn(f"interrupted at ADMM iteration {result.iterations}: the distance written is the current iterate")
+        warn(f"{stop_word()} at ADMM iteration {result.iterations}: the distance written is the current iterate")
     elif not result.converged:
         warn(
             f"the ADMM did not converge in {result.iterations} iterations (primal residual "

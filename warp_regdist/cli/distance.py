@@ -10,6 +10,9 @@ from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_statu
                      single_source_options, solve, solver_options, subcommand, summary, warn, write_values)
 
 
+LOCKED_OUTPUTS = ("output", "png")
+
+
 def add_parser(sub) -> None:
     distance = subcommand(
         sub, "distance",

@@ -10,9 +10,10 @@ import sys
 
 import numpy as np
 
+from ..arguments import parse_workers
 from .common import (DEMO_ALPHA_HAT, PROG, announce_compile, check_output, load, max_distance_option,
-                     max_iterations_option, read_xyz, single_source_options, solver_options, subcommand,
-                     warnings_to_stderr)
+                     max_iterations_option, read_xyz, single_source_options, solver_options, stop_status,
+                     stop_word, subcommand, warnings_to_stderr)
 
 
 def add_parser(sub) -> None:
@@ -99,8 +100,10 @@ def _dask_client(args: argparse.Namespace, stack):
         except OSError as exc:
             raise ValueError(f"expected a reachable Dask scheduler at --scheduler, got {args.scheduler!r} "
                              f"({exc})") from None
-    if args.workers < 1:
-        raise ValueError(f"expected --workers as an integer >= 1, got {args.workers}")
+    cores = parse_workers(None)
+    if not 1 <= args.workers <= cores:
+        raise ValueError(f"expected --workers between 1 and the {cores} cores here (for more, a --scheduler of a "
+                         f"cluster), got {args.workers}")
     cluster = stack.enter_context(LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                                                dashboard_address=":0"))
     return stack.enter_context(Client(cluster))
@@ -151,9 +154,9 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"expected zarr for a .zarr --output (pip install 'warp-regdist[distributed]'), "
                              f"got {exc}") from None
         except KeyboardInterrupt:
-            print(f"{PROG}: interrupted; the blocks written so far stay in {args.output}: run the same command "
+            print(f"{PROG}: {stop_word()}; the blocks written so far stay in {args.output}: run the same command "
                   "again to resume", file=sys.stderr)
-            return 130
+            return stop_status()
     if not args.quiet:
         where = "here" if client is None else f"on a Dask cluster ({args.scheduler or f'{args.workers} workers'})"
         print(f"{os.path.basename(args.mesh)}: {mesh.n_vertices} vertices. Distance matrix of {D.shape[0]} "

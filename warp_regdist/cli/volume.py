@@ -13,6 +13,9 @@ from .common import (DEMO_ALPHA_HAT, LISTED_SOURCES, check_output, exit_status, 
                      solver_options, subcommand, summary)
 
 
+LOCKED_OUTPUTS = ("output", "png")
+
+
 def _insert_points(surface, xyz):
     """The surface refined at the closest surface points of xyz (their vertices are kept by TetGen,
     which numbers the surface's vertices first), and how far each point moved."""

@@ -59,8 +59,8 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     device, dtype
         As for :class:`DistanceSolver`; the matrix has the solver's dtype.
     chunk : int
-        Rows per block: one batched ADMM, one Dask task, one stored block (memory grows
-        linearly with it).
+        Rows per block (at most the number of rows): one batched ADMM, one Dask task, one stored
+        block (memory grows linearly with it).
     workers : int or None
         CPU workers of the local solver, as for :class:`DistanceSolver` (each block is split
         among them); with a client each task runs on one core of its Dask worker.
@@ -113,7 +113,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     if landmarks is None and (src.min() < 0 or src.max() >= n):
         raise ValueError(f"expected sources in [0, {n - 1}], got {src.min() if src.min() < 0 else src.max()}")
     src = src.astype(np.int64)
-    chunk = int(chunk)
+    chunk = int(min(chunk, src.size))          # one block holds every row
     if options is not None and not isinstance(options, SolverOptions):
         raise ValueError(f"expected options as a SolverOptions or None, got {type(options).__name__}")
     options = SolverOptions() if options is None else options
