@@ -512,3 +512,102 @@ def test_a_second_run_on_the_same_output_is_refused(sphere_file, tmp_path, capsy
     assert not out.exists()
     code, _, err = _cli(capsys, "distance", sphere_file, "--sources", "0", "--output", out, "--quiet")
     assert code == 0 and out.exists() and not os.path.exists(f"{out}.lock")
+
+
+def test_a_truncated_ascii_ply_is_refused_and_unused_vertices_warn(sphere, tmp_path, capsys):
+    whole = tmp_path / "whole.ply"
+    trimesh.Trimesh(sphere.vertices, sphere.elements, process=False).export(whole, encoding="ascii")
+    lines = whole.read_text().splitlines()
+    body = lines.index("end_header") + 1
+    for kept, name in ((162 + 100, "faces.ply"), (10, "vertices.ply")):
+        path = tmp_path / name
+        path.write_text("\n".join(lines[:body + kept]) + "\n")
+        expected = (f"expected 162 vertex lines and 320 face lines after the header of '{path}', as it declares, got "
+                    f"{kept} lines: the file is truncated")
+        with pytest.raises(wrd.MeshError, match=f"^{re.escape(expected)}$"):
+            wrd.load_mesh(path)
+        code, _, err = _cli(capsys, "distance", path, "--sources", "0", "--output", tmp_path / "u.npy")
+        assert (code, err) == (2, f"warp-regdist: error: {expected}\n")
+    obj = tmp_path / "spare.obj"
+    with open(obj, "w") as f:
+        f.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in sphere.vertices.tolist() + [[9.0, 9.0, 9.0]] * 2)
+        f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in sphere.elements)
+    with pytest.warns(wrd.MeshWarning, match=rf"^{re.escape(str(obj))}: 2 of 164 vertices are in no element \(first: "
+                                             r"vertex 162\): their distance is \+inf$"):
+        assert wrd.load_mesh(obj).n_vertices == 164
+
+
+def test_distance_checks_the_room_before_the_solve_and_keeps_a_copy_when_the_disk_fills(sphere_file, tmp_path,
+                                                                                        capsys, monkeypatch):
+    import warp_regdist.cli.distance as cli_distance
+
+    out = tmp_path / "u.npy"
+    monkeypatch.setattr(atomic_write.shutil, "disk_usage", lambda folder: types.SimpleNamespace(free=1000))
+    monkeypatch.setattr(cli_distance, "solve", lambda *a, **k: pytest.fail("solved before the room check"))
+    code, _, err = _cli(capsys, "distance", sphere_file, "--sources", "0", "--output", out)
+    assert (code, err) == (2, f"warp-regdist: error: expected 1.42 kB free for --output '{out}' (1.42 kB), got "
+                              f"1 kB free on the file system of '{tmp_path}'\n")
+    monkeypatch.undo()
+    save = np.save
+
+    def full_disk_for_the_output(file, array, *args, **kwargs):    # the disk fills during the solve
+        if str(file).startswith(str(out)):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return save(file, array, *args, **kwargs)
+
+    monkeypatch.setattr(np, "save", full_disk_for_the_output)
+    code, _, err = _cli(capsys, "distance", sphere_file, "--sources", "0", "--output", out, "--quiet")
+    assert code == 2 and not out.exists()
+    rescue = err.split("the distance was written to '")[1].split("'")[0]
+    monkeypatch.undo()
+    u = np.load(rescue)
+    os.remove(rescue)
+    assert u.shape == (162,) and u[0] == 0.0 and u.max() > 1.0
+
+
+def test_matrix_checks_the_room_first_and_a_disk_that_fills_keeps_the_blocks(sphere, tmp_path, monkeypatch):
+    import warp_regdist.matrices.matrix_store as matrix_store
+
+    out = tmp_path / "D.npy"
+    sources = [0, 5, 9, 30, 40, 50]
+    monkeypatch.setattr(atomic_write.shutil, "disk_usage", lambda folder: types.SimpleNamespace(free=1000))
+    with pytest.raises(ValueError, match=r"^expected 8\.06 kB free for out '.*D\.npy' \(8\.06 kB\), got 1 kB free "
+                                         r"on the file system of '.*'$"):    # 6 rows of 162, their strips of S
+        wrd.distance_matrix(sphere, sources=sources, chunk=2, out=str(out))
+    assert os.listdir(tmp_path) == []                                  # nothing created
+    monkeypatch.undo()
+    write = matrix_store.NpyFile.write
+
+    def full_at_block_two(self, start, values):
+        if self.path == str(out) and start >= 2 * 2 * 162:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return write(self, start, values)
+
+    monkeypatch.setattr(matrix_store.NpyFile, "write", full_at_block_two)
+    with pytest.raises(wrd.WriteError, match=r"^could not write block 2 of '.*D\.npy' \(2\.59 kB\): No space left on "
+                                             r"device \(.* free\); the blocks written so far stay: make room and run "
+                                             r"the same call again to go on$"):
+        wrd.distance_matrix(sphere, sources=sources, chunk=2, out=str(out))
+    monkeypatch.undo()
+    D = wrd.distance_matrix(sphere, sources=sources, chunk=2, out=str(out))     # the same call, with room
+    assert np.array_equal(np.asarray(D), wrd.distance_matrix(sphere, sources=sources, chunk=2))
+
+
+def test_a_failed_final_write_says_what_an_older_checkpoint_holds(sphere_file, tmp_path, capsys, monkeypatch):
+    out, ckpt = tmp_path / "U.npy", tmp_path / "run.npz"
+    result = wrd.AllPairsResult(iterations=400, checkpoint_iteration=61)
+    save = np.save
+
+    def full_disk_for_the_output(file, array, *args, **kwargs):
+        if str(file).startswith(str(out)):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return save(file, array, *args, **kwargs)
+
+    monkeypatch.setattr(np, "save", full_disk_for_the_output)
+    with pytest.raises(wrd.WriteError, match=rf"the matrix was written to '.*U\.npy' instead; the checkpoint "
+                                             rf"'{re.escape(str(ckpt))}' holds iteration 61 of 400$") as caught:
+        cli_allpairs.write_matrix(str(out), np.eye(3), str(ckpt), result)
+    monkeypatch.undo()
+    rescue = str(caught.value).split("the matrix was written to '")[1].split("'")[0]
+    assert np.array_equal(np.load(rescue), np.eye(3))
+    os.remove(rescue)

@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 
 import numpy as np
 
 from .common import (announce_compile, check_output, estimated_error, exit_status, load, repair_option,
-                     solver_options, stop_word, subcommand, warn, warnings_to_stderr)
+                     solver_options, stop_word, subcommand, warn, warnings_to_stderr, write_or_rescue)
 
 
 LOCKED_OUTPUTS = ("output",)
@@ -115,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     if not result.converged:
         warn(_unconverged(result, args))
     U = result.distance if mesh.input_index is None else result.distance[np.ix_(mesh.input_index, mesh.input_index)]
-    write_matrix(args.output, U, args.checkpoint)
+    write_matrix(args.output, U, args.checkpoint, result)
     if not args.quiet:
         print(f"{os.path.basename(args.mesh)}: {n} vertices. All-pairs regularized distance, "
               f"alpha_hat {args.alpha_hat:g}, {args.dtype}: {result.iterations} ADMM iterations ({result.engine} engine), "
@@ -143,24 +142,16 @@ def _unconverged(result, args) -> str:
             f"with --resume {args.checkpoint}{more})")
 
 
-def write_matrix(path: str, U: np.ndarray, checkpoint: str | None) -> None:
+def write_matrix(path: str, U: np.ndarray, checkpoint: str | None, result) -> None:
     """``U`` to ``path`` atomically; when that fails (a disk that filled during the run), the error
-    says where the matrix is: in the checkpoint, or in a copy written to the temporary directory."""
-    from ..atomic_write import write_atomic
-    from ..errors import WriteError
-
-    try:
-        write_atomic(path, lambda tmp: np.save(tmp, U), "--output", size=U.nbytes + 128)
-        return
-    except WriteError as exc:
-        failed = exc
-    if checkpoint is not None and os.path.isfile(checkpoint):
-        raise WriteError(f"{failed}; the matrix is in the checkpoint {checkpoint!r}: run the same command with "
-                         f"--resume {checkpoint} and an --output where there is room", failed.errno) from None
-    rescue = os.path.join(tempfile.gettempdir(), f"warp-regdist-{os.getpid()}-{os.path.basename(path)}")
-    try:
-        write_atomic(rescue, lambda tmp: np.save(tmp, U), "the copy of --output", size=U.nbytes + 128)
-    except WriteError:
-        raise WriteError(f"{failed}; no copy could be written to {tempfile.gettempdir()!r} either: the matrix is "
-                         "lost (a --checkpoint keeps it)", failed.errno) from None
-    raise WriteError(f"{failed}; the matrix was written to {rescue!r} instead", failed.errno) from None
+    says where the matrix is: in the checkpoint when it holds the final iterate, else in a copy
+    written to the temporary directory (and what the checkpoint holds)."""
+    saved = result.get("checkpoint_iteration")
+    if checkpoint is not None and saved is not None and saved == result.iterations:
+        elsewhere = (f"the matrix is in the checkpoint {checkpoint!r}: run the same command with --resume "
+                     f"{checkpoint} and an --output where there is room")
+    else:
+        elsewhere = None
+    kept = (f"; the checkpoint {checkpoint!r} holds iteration {saved} of {result.iterations}"
+            if checkpoint is not None and saved is not None and elsewhere is None else "")
+    write_or_rescue(path, U, "--output", "the matrix", elsewhere, kept)

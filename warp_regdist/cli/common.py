@@ -18,6 +18,7 @@ DEMO_SOURCE = 2272
 DEMO_ALPHA_HAT = 0.05
 OUTPUT_EXTENSIONS = (".npy", ".csv", ".vtu")
 LISTED_SOURCES = 8  # sources named one by one in the summary
+PICTURE_BYTES = 4_000_000  # at most the bytes of a --png picture, for the room check before a solve
 
 EXIT_STATUS = """\
 exit status (the same for every subcommand):
@@ -191,6 +192,44 @@ def write_values(path: str, values: np.ndarray) -> None:
                 f.writelines(f"{float(v)!r}\n" for v in values)
 
         write_atomic(path, write_csv, "--output")
+
+
+def values_bytes(path: str, n_values: int, n_elements: int = 0) -> int:
+    """An upper bound of the bytes of an output of ``n_values`` values (.npy, .csv; .vtu with the mesh's
+    ``n_elements`` elements too), for the room check before a solve."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".npy":
+        return 8 * n_values + 128
+    if ext == ".csv":
+        return 26 * n_values
+    return 64 * (n_values + n_elements) + 4096
+
+
+def write_or_rescue(path: str, values: np.ndarray, what: str, called: str, elsewhere: str | None = None,
+                    kept: str = "", write=None) -> None:
+    """Write ``values`` to ``path`` (``write(path)``, default :func:`write_values`); when that fails
+    (a disk that filled during the run) raise a WriteError that says where ``called`` (the result)
+    is: ``elsewhere`` when given, else a .npy copy written to the temporary directory."""
+    import tempfile
+
+    from ..atomic_write import write_atomic
+    from ..errors import WriteError
+
+    try:
+        (write or (lambda target: write_values(target, values)))(path)
+        return
+    except WriteError as exc:
+        failed = exc
+    if elsewhere is not None:
+        raise WriteError(f"{failed}; {elsewhere}", failed.errno) from None
+    stem = os.path.splitext(os.path.basename(path))[0]
+    rescue = os.path.join(tempfile.gettempdir(), f"warp-regdist-{os.getpid()}-{stem}.npy")
+    try:
+        write_atomic(rescue, lambda tmp: np.save(tmp, values), f"the copy of {what}", size=values.nbytes + 128)
+    except WriteError:
+        raise WriteError(f"{failed}; no copy could be written to {tempfile.gettempdir()!r} either: {called} is "
+                         f"lost{kept}", failed.errno) from None
+    raise WriteError(f"{failed}; {called} was written to {rescue!r} instead{kept}", failed.errno) from None
 
 
 def warn(message: str) -> None:

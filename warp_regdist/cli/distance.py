@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, check_output, exit_status, file_values, load,
+from ..atomic_write import check_room
+from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, PICTURE_BYTES, check_output, exit_status, file_values, load,
                      max_distance_option, max_iterations_option, parse_sources, parse_surface_points, repair_option,
-                     single_source_options, solve, solver_options, subcommand, summary, warn, write_values)
+                     single_source_options, solve, solver_options, subcommand, summary, values_bytes, warn,
+                     write_or_rescue)
 
 
 LOCKED_OUTPUTS = ("output", "png")
@@ -127,6 +129,11 @@ def run(args: argparse.Namespace) -> int:
     if args.closed and args.curve is None:
         raise ValueError("expected --closed with a --curve, got no --curve")
     mesh = load(args.mesh, args.repair)
+    n = mesh.n_vertices if mesh.input_index is None else mesh.input_index.size
+    planned = [(args.output, values_bytes(args.output, n, mesh.n_elements), "--output")]
+    if args.png is not None:
+        planned.append((args.png, PICTURE_BYTES, "--png"))
+    check_room(planned)                       # before the solve, not after it
     sources, where, described = None, {}, []
     if args.sources is not None and args.sources.lower().endswith(".csv"):
         where["points"], text = parse_surface_points(args.sources, mesh, "--sources", args.max_distance)
@@ -146,10 +153,12 @@ def run(args: argparse.Namespace) -> int:
     elif args.polish:
         warn("--polish skipped: the ADMM did not converge, the distance written is its iterate")
     values = result.signed_distance if args.closed else result.distance
+    name = "the signed distance" if args.closed else "the distance"
     if args.output.lower().endswith(".vtu"):
-        save_vtu(args.output, mesh, {"signed_distance" if args.closed else "distance": values})
+        write_or_rescue(args.output, file_values(mesh, values), "--output", name,
+                        write=lambda target: save_vtu(target, mesh, {name[4:].replace(" ", "_"): values}))
     else:
-        write_values(args.output, file_values(mesh, values))
+        write_or_rescue(args.output, file_values(mesh, values), "--output", name)
     written = [args.output]
     if args.png is not None:
         marked = sources if args.sources is not None and args.sources.strip().lower() != "boundary" else None

@@ -70,6 +70,8 @@ def load_mesh(path, repair=False):
                         f"got {path!r}")
     import trimesh
 
+    if ext == ".ply":
+        check_ascii_ply_complete(path)
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for malformed files (ImportError when it
@@ -90,8 +92,36 @@ def load_mesh(path, repair=False):
     return _mesh(path, V, F, repair)
 
 
+def check_ascii_ply_complete(path):
+    """MeshError unless an ASCII PLY file holds as many data lines after its header as its ``element``
+    lines declare records (one line each); binary files are checked by their reader."""
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        return                                  # not a PLY header: the reader says what is wrong
+    header = data[:end].decode("ascii", errors="replace").splitlines()
+    if not any(line.split()[:2] == ["format", "ascii"] for line in header):
+        return
+    declared = [(words[1], int(words[2])) for words in (line.split() for line in header)
+                if len(words) == 3 and words[0] == "element" and words[2].isdigit()]
+    body = data[data.find(b"\n", end) + 1:] if data.find(b"\n", end) >= 0 else b""
+    found = sum(1 for line in body.splitlines() if line.strip())
+    if found < sum(count for _, count in declared):
+        what = " and ".join(f"{count} {name} lines" for name, count in declared)
+        raise MeshError(f"expected {what} after the header of {path!r}, as it declares, got {found} lines: the file "
+                        "is truncated")
+
+
 def _mesh(path, V, F, repair):
-    """Mesh(V, F), or with ``repair`` the repaired mesh and a warning saying what changed."""
+    """Mesh(V, F), or with ``repair`` the repaired mesh and a warning saying what changed; a warning
+    names the file's vertices that no face uses (their distance is +inf)."""
+    F = np.asarray(F)
+    if F.ndim == 2 and F.size and np.issubdtype(F.dtype, np.integer) and 0 <= F.min() and F.max() < len(V):
+        unused = np.setdiff1d(np.arange(len(V)), F.ravel())
+        if unused.size:
+            warnings.warn(f"{path}: {unused.size} of {len(V)} vertices are in no element (first: vertex "
+                          f"{unused[0]}): their distance is +inf", MeshWarning, stacklevel=3)
     if not repair:
         return Mesh(V, F)
     from .repair import repair_mesh
@@ -283,7 +313,10 @@ def load_points(path, neighbours=30):
         else:
             import trimesh
 
+            check_ascii_ply_complete(path)
             P = np.asarray(trimesh.load(path, process=False).vertices)
+    except MeshError:
+        raise
     except Exception as exc:  # numpy and trimesh raise many types for malformed files
         raise MeshError(f"could not read point file {path!r}: not a valid {ext[1:].upper()} file ({exc})") from None
     try:

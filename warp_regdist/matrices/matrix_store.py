@@ -25,6 +25,8 @@ after damage, is symmetrized against the others. Memory: a (chunk, n) row block 
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import shutil
@@ -32,7 +34,8 @@ import zlib
 
 import numpy as np
 
-from ..atomic_write import write_atomic
+from ..atomic_write import check_room, format_bytes, write_atomic
+from ..errors import WriteError
 from ..file_lock import FileLock
 
 __all__ = ["MemoryRows", "DiskRows", "NpyFile", "open_rows", "average_source_pairs", "OUT_EXTENSIONS"]
@@ -126,12 +129,15 @@ class DiskRows:
         self.lock = FileLock(self.path, "the matrix").acquire()
         try:
             stored = self._stored_fingerprint()
+            symmetrize = bool(fingerprint.get("symmetrize", False))
             if stored is None:
+                self._check_room(self.blocks, symmetrize)      # before anything is created
                 self._create(fingerprint)
             else:
                 _check_fingerprint(stored, fingerprint, self.path)
                 self.array = self._open()
                 self.verify()
+                self._check_room(len(self.todo()), symmetrize)
         except BaseException:
             self.lock.release()
             raise
@@ -234,11 +240,39 @@ class DiskRows:
         else:
             self.array.write(lo * self.shape[1], rows)
 
+    def _check_room(self, todo, symmetrize):
+        """ValueError unless the file system of a ``.npy`` matrix has room for ``todo`` blocks still to
+        write (and their strips of S with ``symmetrize``); a Zarr store compresses, so it is not checked."""
+        if self.zarr:
+            return
+        c, itemsize = self.chunk, self.dtype.itemsize
+        needed = todo * c * self.shape[1] * itemsize + (todo * self.blocks * c * c * itemsize if symmetrize else 0)
+        check_room([(self.path, needed, "out")])
+
+    @contextlib.contextmanager
+    def _writing(self, block):
+        """Turn a full disk while block ``block`` is written into a WriteError naming the matrix, the
+        room left and how to go on (the blocks already written stay)."""
+        try:
+            yield
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            free = shutil.disk_usage(os.path.dirname(os.path.abspath(self.path))).free
+            size = format_bytes(self.chunk * self.shape[1] * self.dtype.itemsize)
+            raise WriteError(f"could not write block {block} of {self.path!r} ({size}): {exc.strerror} "
+                             f"({format_bytes(free)} free); the blocks written so far stay: make room and run the "
+                             "same call again to go on", exc.errno) from None
+
     def write(self, block, rows, sources):
         """Rows of ``block`` (and, when ``sources`` is given, their source columns into S), then its marker.
 
         S is a (blocks, blocks, chunk, chunk) ``.npy``: tile (i, j) = S[rows of block i, columns of block j].
         """
+        with self._writing(block):
+            self._write_block(block, rows, sources)
+
+    def _write_block(self, block, rows, sources):
         self._mark("symmetric", block, done=False)     # its rows are solved again, unsymmetrized
         self._write_rows(block, rows)
         if sources is not None:
@@ -276,10 +310,11 @@ class DiskRows:
                 if j != block:
                     j0, j1 = j * c, min(k, (j + 1) * c)
                     rows[:, sources[j0:j1]] = self._rows(j0, j1)[:, sources[lo:hi]].T
-            self._mark("rows", block, done=False)  # a write cut short is then solved again
-            self._write_rows(block, rows)
-            self._mark("rows", block, rows=rows)
-            self._mark("symmetric", block)
+            with self._writing(block):
+                self._mark("rows", block, done=False)  # a write cut short is then solved again
+                self._write_rows(block, rows)
+                self._mark("rows", block, rows=rows)
+                self._mark("symmetric", block)
         if os.path.exists(self.tiles_path):
             os.remove(self.tiles_path)
         for block in np.flatnonzero(stored):
