@@ -1,6 +1,25 @@
-"""Faults at the edges: full disks, flipped bits, errors while releasing, progress that a rerun would
-overwrite, numbers too large, long runs, foreign Zarr stores, stale temporary files, signals and
-dead workers; each through the library and, where a user meets it, through the real command line."""
+"""Faults at the edges, read as the contract of docs/guides/cli.md and docs/guides/long-runs.md: each
+promise those pages make, and the test that holds it (``test_the_contract_names_tests_that_exist``
+keeps this table true). Tests named without a module are in this one.
+
+| promise | held by |
+|---|---|
+| exit 0/1/2/130/143; every refusal one ``warp-regdist: error:`` line, nothing written | test_every_refusal_of_every_subcommand_is_one_line_and_exit_2, test_huge_source_indices_are_one_line_errors |
+| Ctrl-C and SIGTERM stop at an iteration boundary and keep the work (final checkpoint, iterate, blocks) | test_a_stop_signal_keeps_the_work_of_every_solving_subcommand, test_sigterm_from_outside_stops_allpairs_with_its_checkpoint, test_long_runs.py::test_interrupt_returns_the_iterate_and_checkpoints |
+| a second Ctrl-C stops at once | test_a_second_ctrl_c_stops_at_once_with_exit_130 |
+| outputs are written whole or not at all; a failed write leaves the old file | test_a_failed_write_leaves_the_old_file_and_no_temporary, test_allpairs_on_a_full_file_system_keeps_the_old_output |
+| the room is checked before the work | test_a_write_larger_than_the_free_space_is_refused_unwritten, test_room_is_counted_per_file_system_for_all_outputs, test_distance_checks_the_room_before_the_solve_and_keeps_a_copy_when_the_disk_fills, test_matrix_checks_the_room_first_and_a_disk_that_fills_keeps_the_blocks, test_long_runs.py::test_checkpoint_without_room_is_refused_before_allocating |
+| a disk that fills during a run says where the result is | test_a_final_write_that_fails_says_where_the_matrix_is, test_a_failed_final_write_says_what_an_older_checkpoint_holds, test_distance_checks_the_room_before_the_solve_and_keeps_a_copy_when_the_disk_fills |
+| a checkpoint save that fails warns once and the run goes on | test_a_checkpoint_save_that_fails_warns_once_and_the_run_goes_on |
+| damage is found before any work, and the advised recovery repairs | test_a_flipped_bit_in_a_checkpoint_is_refused_before_allocation, test_a_flipped_bit_in_a_matrix_block_is_refused_before_any_work, test_the_advised_recovery_of_a_damaged_finished_matrix_gives_the_undamaged_one |
+| progress is never overwritten by mistake; one run per output | test_a_checkpoint_holding_progress_is_refused_without_resume_or_restart, test_resume_and_restart_of_one_file_is_refused, test_a_second_run_on_the_same_output_is_refused |
+| a resumed run gives the uninterrupted result | test_long_runs.py::test_resumed_run_equals_uninterrupted, test_distance_matrix.py::test_disk_output_and_resume |
+| stale temporaries and locks of dead runs are cleared | test_stale_temporaries_of_dead_writers_are_removed, test_releasing_a_lock_never_raises |
+| a run at its cap says how to continue | test_allpairs_at_its_cap_without_a_checkpoint_says_how_a_rerun_could_continue, test_allpairs_flagged_steep_before_its_cap_is_not_sent_to_resume |
+| workers die with their parent; a dead worker is one line | test_worker_processes.py::test_workers_exit_with_their_parent, test_a_dead_worker_is_one_line_and_exit_2 |
+| files that are not what they claim are refused | test_a_truncated_ascii_ply_is_refused_and_unused_vertices_warn, test_a_zarr_store_with_foreign_codecs_is_refused_unread |
+| progress lines, nothing on stdout from the library | test_allpairs_progress_is_one_line_per_window_with_every_stop_test, test_the_library_prints_nothing_on_stdout |
+"""
 
 import errno
 import json
@@ -611,3 +630,61 @@ def test_a_failed_final_write_says_what_an_older_checkpoint_holds(sphere_file, t
     rescue = str(caught.value).split("the matrix was written to '")[1].split("'")[0]
     assert np.array_equal(np.load(rescue), np.eye(3))
     os.remove(rescue)
+
+
+def _refusals(mesh, tmp):
+    """(subcommand argv, a fragment of its one error line) for refusals of every subcommand."""
+    missing = str(tmp / "no-such.off")
+    out = str(tmp / "x.npy")
+    bad_dir = str(tmp / "no-such-dir" / "x.npy")
+    common = [(["--dtype", "float16"], "invalid choice: 'float16'"), (["--device", "cuda:7"], "expected a Warp device"),
+              (["--bogus"], "unrecognized arguments: --bogus")]
+    cases = []
+    for argv, what in common:
+        cases += [(["distance", mesh, "--sources", "0", "--output", out, *argv], what),
+                  (["allpairs", mesh, "--output", out, *argv], what),
+                  (["matrix", mesh, "--sources", "all", "--output", out, *argv], what),
+                  (["volume", mesh, "--sources", "boundary", "--output", str(tmp / "x.vtu"), *argv], what)]
+    cases += [
+        (["distance", missing, "--sources", "0", "--output", out], "expected an existing mesh file"),
+        (["distance", mesh, "--sources", "99999999999999999999", "--output", out], "expected --sources"),
+        (["distance", mesh, "--sources", "0", "--output", str(tmp / "x.txt")], "expected --output ending in"),
+        (["distance", mesh, "--sources", "0", "--output", bad_dir], "expected --output in an existing directory"),
+        (["distance", mesh, "--sources", "0", "--output", out, "--max-iterations", "-3"], "max_iterations"),
+        (["distance", mesh, "--output", out], "expected --sources or --curve"),
+        (["allpairs", mesh, "--output", out, "--accuracy", "5"], "expected accuracy"),
+        (["allpairs", mesh, "--output", out, "--resume", str(tmp / "no.npz")], "expected --resume as an existing"),
+        (["allpairs", mesh, "--output", out, "--checkpoint-seconds", "1e400"], "checkpoint_seconds"),
+        (["matrix", mesh, "--sources", "all", "--output", out, "--chunk", "0"], "chunk"),
+        (["matrix", mesh, "--sources", "all", "--output", out, "--workers", "100000000000000000000"], "--workers"),
+        (["matrix", mesh, "--sources", "0,1", "--output", out], "expected --sources as 'all' or an existing file"),
+        (["volume", missing, "--sources", "boundary", "--output", str(tmp / "x.vtu")], "expected"),
+        (["view", mesh, str(tmp / "no.npy")], "expected"),
+        (["demo", "--dtype", "float16"], "invalid choice"),
+        (["distance"], "the following arguments are required"),
+        ([], "the following arguments are required: COMMAND"),
+    ]
+    return cases
+
+
+def test_every_refusal_of_every_subcommand_is_one_line_and_exit_2(sphere_file, tmp_path, capsys):
+    for argv, what in _refusals(str(sphere_file), tmp_path):
+        code, out, err = _cli(capsys, *argv)
+        assert code == 2 and out == "", argv
+        assert len(err.splitlines()) == 1 and err.startswith("warp-regdist") and ": error: " in err, (argv, err)
+        assert what in err, (argv, err)
+    assert sorted(os.listdir(tmp_path)) == []                              # and nothing written
+
+
+def test_the_contract_names_tests_that_exist():
+    import ast
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    table = [line for line in __doc__.splitlines() if line.startswith("| ") and not line.startswith("| promise")]
+    named = [name.strip() for line in table for name in line.split("|")[2].split(",")]
+    assert len(table) >= 15 and all(named)
+    for name in named:
+        module, _, test = name.rpartition("::")
+        with open(os.path.join(here, module or os.path.basename(__file__))) as f:
+            defined = {node.name for node in ast.walk(ast.parse(f.read())) if isinstance(node, ast.FunctionDef)}
+        assert test in defined, name

@@ -69,6 +69,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
+    from ..arguments import parse_device
     from ..atomic_write import write_atomic
     from ..output.export import save_vtu
     from ..output.render import render_cut
@@ -78,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output, (".vtu",), "--output")
     if args.png is not None:
         check_output(args.png, (".png",), "--png")
+    parse_device(args.device)                      # before the tetrahedralization says anything
     if (args.grid is None) != (args.grid_output is None):
         raise ValueError("expected --grid N and --grid-output FILE together, got only "
                          f"{'--grid' if args.grid_output is None else '--grid-output'}")

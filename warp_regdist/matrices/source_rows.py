@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 
 from . import distributed
-from ..arguments import check_weight, parse_workers
+from ..arguments import check_weight, parse_device, parse_workers
 from ..kernels.lanes import SCALARS
 from .matrix_store import open_rows
 from ..geometry.mesh import Mesh
@@ -118,6 +118,8 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
         raise ValueError(f"expected options as a SolverOptions or None, got {type(options).__name__}")
     options = SolverOptions() if options is None else options
     problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype, options=options)
+    if client is None:
+        parse_device(device)                   # refused before the output is created
     if client is not None:
         distributed.check_client(client)
         if out is None:
