@@ -66,6 +66,42 @@ def test_code_blocks_run(page, tmp_path, monkeypatch):
             raise AssertionError(f"{page}, python block {i + 1} failed: {exc!r}\n{block}") from exc
 
 
+def _readme_blocks(language):
+    """The README's fenced ``language`` blocks, as (first line, text), the "not run" ones left out."""
+    with open(os.path.join(ROOT, "README.md"), encoding="utf-8") as f:
+        blocks = re.findall(rf"```{language}\n(.*?)```", f.read(), re.S)
+    return [(b.splitlines()[0], b) for b in blocks if not b.startswith(NOT_RUN)]
+
+
+def test_the_readme_python_runs_on_the_base_install(tmp_path, monkeypatch):
+    """The README's python blocks that name no extra, in one namespace, with the extras' packages absent."""
+    for extra in ("tetgen", "polyscope", "torch", "dask", "distributed", "zarr"):
+        monkeypatch.setitem(sys.modules, extra, None)            # import fails as on the base install
+    monkeypatch.chdir(tmp_path)
+    namespace = {"__name__": "__docs__"}
+    base = [text for first, text in _readme_blocks("python") if "extra" not in first]
+    assert len(base) >= 2
+    for i, block in enumerate(base):
+        exec(compile(block, f"README.md, base python block {i + 1}", "exec"), namespace)
+
+
+def test_the_readme_command_lines_run_as_pasted(tmp_path):
+    """The README's sh blocks through bash, from a directory laid out as the clone's root, with the
+    installed ``warp-regdist`` first on the PATH (as after ``. .venv/bin/activate``)."""
+    pytest.importorskip("tetgen")                               # one block is the [volume] extra's
+    for name in ("warp_regdist", "examples"):
+        os.symlink(os.path.join(ROOT, name), tmp_path / name)
+    env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", ""))
+    blocks = _readme_blocks("sh")
+    assert len(blocks) >= 2
+    for first, block in blocks:
+        done = subprocess.run(["bash", "-euo", "pipefail", "-c", block], cwd=tmp_path, env=env, capture_output=True,
+                              text=True, timeout=600)
+        assert done.returncode == 0, f"{first}\n{done.stderr[-3000:]}"
+    for written in ("u.npy", "u.png", "signed.npy", "U.npy", "run.npz", "D.npy", "depth.vtu", "cut.png"):
+        assert (tmp_path / written).is_file(), written
+
+
 def _sphere_files(folder):
     """A 642-vertex sphere and the same sphere with two holes, as OFF files."""
     s = trimesh.creation.icosphere(3)
