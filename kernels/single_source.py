@@ -23,10 +23,10 @@ IT, CG_TOTAL = 0, 1
 # Rows of ``lane``: the per-lane constants of the test (eps_abs sqrt(n_free) A, |mask A_V|), the
 # change test's maxima (the window's change, |u| and the vertices' extrapolated changes) and flag,
 # the change still to come, the done / newly-done flags, this check's residuals and tolerances,
-# and the values recorded when the lane's test first held.
+# the values recorded when the lane's test first held, and the last window's change relative to max |u|.
 (EPS_DUAL_ABS, LOAD_NORM, MOVED, UMAX, EXTRAPOLATED, SETTLED, ESTIMATE, DONE, NEWLY, R_LAST, S_LAST, EPS_PRI,
- EPS_DUAL, DUAL_SCALE, RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT, ESTIMATE_OUT) = range(20)
-LANE_ROWS = 20
+ EPS_DUAL, DUAL_SCALE, RHO_LAST, IT_OUT, R_OUT, S_OUT, RHO_OUT, ESTIMATE_OUT, CHANGE) = range(21)
+LANE_ROWS = 21
 
 
 @functools.cache
@@ -225,8 +225,8 @@ def single_source_kernels(scalar, W, k):
             eps_pri = eps_pri_abs + eps_rel max(|G u|, |z|),  dy = max(|D y|, |mask A_V|),
             eps_dual = eps_dual_abs + eps_rel_dual dy,
             the change test every ``window`` iterations, with ESTIMATE = EXTRAPOLATED / UMAX (0 where
-            MOVED or UMAX = 0), settled: (MOVED = 0 or MOVED <= eps_change UMAX) and
-            ESTIMATE <= eps_estimate,
+            MOVED or UMAX = 0), CHANGE = MOVED / UMAX (kept for the progress reports), settled:
+            (MOVED = 0 or MOVED <= eps_change UMAX) and ESTIMATE <= eps_estimate,
         done once r <= eps_pri, s <= eps_dual and settled (NEWLY marks the first time, which
         records it, r, s, rho_old / length, ESTIMATE); then rho = rho_table[it % T] for this iteration
         and the u-step's CG tolerance per lane,
@@ -250,6 +250,7 @@ def single_source_kernels(scalar, W, k):
         ahead = lane[EXTRAPOLATED, b]
         settled = lane[SETTLED, b]
         estimate = lane[ESTIMATE, b]
+        change = lane[CHANGE, b]
         done = lane[DONE, b]
         newly = V()
         r_last = lane[R_LAST, b]
@@ -275,8 +276,10 @@ def single_source_kernels(scalar, W, k):
                 dual_scale[l] = eps_dual_abs[l] + dy
                 if due:
                     estimate[l] = zero
+                    change[l] = zero
                     if moved[l] > zero and top[l] > zero:
                         estimate[l] = ahead[l] / top[l]
+                        change[l] = moved[l] / top[l]
                     settled[l] = zero
                     if (moved[l] == zero or moved[l] <= eps_change * top[l]) and estimate[l] <= eps_estimate:
                         settled[l] = one
@@ -305,6 +308,7 @@ def single_source_kernels(scalar, W, k):
         lane[EXTRAPOLATED, b] = ahead
         lane[SETTLED, b] = settled
         lane[ESTIMATE, b] = estimate
+        lane[CHANGE, b] = change
         lane[DONE, b] = done
         lane[NEWLY, b] = newly
         lane[R_LAST, b] = r_last

@@ -324,7 +324,7 @@ def test_a_second_ctrl_c_stops_at_once_with_exit_130(sphere_file, tmp_path, caps
     def second_ctrl_c(progress):
         raise KeyboardInterrupt   # what a second Ctrl-C raises
 
-    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda banner: second_ctrl_c)
+    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda banner, cap=None: second_ctrl_c)
     code, out, err = _cli(capsys, "allpairs", sphere_file, "--output", tmp_path / "V.npy", "--device", "cpu")
     assert (code, out, err.splitlines()) == (130, "", ["warp-regdist: interrupted"])
 
@@ -343,7 +343,7 @@ def test_a_dead_worker_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
                 os.kill(worker, signal.SIGKILL)
                 os.waitid(os.P_PID, worker, os.WEXITED | os.WNOWAIT)
 
-    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda banner: kill_the_worker)
+    monkeypatch.setattr(cli_allpairs, "_allpairs_progress", lambda banner, cap=None: kill_the_worker)
     code, out, err = _cli(capsys, "allpairs", path, "--output", tmp_path / "U.npy", "--workers", "2", "--device", "cpu",
                           "--dtype", "float32", "--engine", "consensus")
     assert code == 2 and out == ""
@@ -409,6 +409,7 @@ def test_allpairs_progress_is_one_line_per_window_with_every_stop_test(sphere_fi
     assert all("max residual/tolerance " in line and "change to come " in line and "gradient excess " in line
                for line in lines)
     assert "change to come inf/0.0035 (holding it back)" in lines[0]
+    assert all(re.search(r"; [0-9.e-]+ s an iteration, at most \d+ s more to the cap of 160$", line) for line in lines)
 
 
 @pytest.mark.parametrize("suffix, removed", [(".npy", ["rows"]), (".zarr", ["rows"]), (".npy", ["rows", "symmetric"])])
@@ -448,7 +449,7 @@ def test_a_stop_signal_keeps_the_work_of_every_solving_subcommand(sphere_file, t
     import warp_regdist.cli.matrix as cli_matrix
     import warp_regdist.solvers.solver as solver_module
 
-    def signal_at_three(banner):
+    def signal_at_three(banner, cap=None):
         def show(progress):
             if progress.iteration == 3:
                 os.kill(os.getpid(), sig)

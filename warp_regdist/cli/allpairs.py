@@ -60,20 +60,32 @@ def add_parser(sub) -> None:
     solver_options(allpairs)
 
 
-def _allpairs_progress(banner):
+def _allpairs_progress(banner, cap=None):
     """A callback for ``all_pairs`` printing ``banner`` at the first iteration (so that a refusal of the
     run's arguments is the only line), then one stderr line per check window: every stop test against
-    its threshold."""
+    its threshold, the time an iteration takes and the most the run can still take (to ``cap``)."""
     started = []
 
     def show(progress):
         if not started:
-            started.append(True)
+            started.append((progress.iteration, progress.seconds))
             print(banner, file=sys.stderr, flush=True)
         if progress.checked:
-            print(f"  {progress}", file=sys.stderr, flush=True)
+            first, t0 = started[0]
+            done = progress.iteration - first
+            rate = (progress.seconds - t0) / done if done > 0 else 0.0
+            ahead = (f"; {rate:.3g} s an iteration, at most {_duration(rate * (cap - progress.iteration))} more "
+                     f"to the cap of {cap}" if rate > 0 and cap else "")
+            print(f"  {progress}{ahead}", file=sys.stderr, flush=True)
 
     return show
+
+
+def _duration(seconds: float) -> str:
+    """'42 s', '7 min', '2.5 h'."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         banner = (f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
                   f"{solver.memory_bytes / 1e9:.2f} GB; a progress line every {solver.options.change_window} "
                   "iterations")
-        result = solver.solve(callback=None if args.quiet else _allpairs_progress(banner),
+        result = solver.solve(callback=None if args.quiet else _allpairs_progress(banner, cap=args.max_iterations),
                               max_iterations=args.max_iterations,
                               checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
                               resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)

@@ -13,8 +13,8 @@ import time
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import (DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE, ESTIMATE_OUT, IT_OUT,
-                                     LANE_ROWS, LOAD_NORM, MOVED, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT, UMAX,
+from ..kernels.single_source import (CHANGE, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE,
+                                     ESTIMATE_OUT, IT_OUT, LANE_ROWS, LOAD_NORM, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
                                      rule_struct, single_source_kernels)
 from ..kernels.lanes import lane_kernels, row_dim, thread_span
 from .progress import Progress, StopTest
@@ -161,8 +161,7 @@ class BatchIterations:
         if self.callback is not None:
             running = np.flatnonzero(slot_col[:live] >= 0)
             rule = self.batch.rule_values
-            with np.errstate(divide="ignore", invalid="ignore"):
-                change = np.where(state[UMAX, running] > 0, state[MOVED, running] / state[UMAX, running], 0.0)
+            change = state[CHANGE, running]                 # the last window's, relative to max |u|
             tests = (StopTest("max r/eps_pri", _max_ratio(state[R_LAST, running], state[EPS_PRI, running]), 1.0),
                      StopTest("max s/eps_dual", _max_ratio(state[S_LAST, running], state[EPS_DUAL, running]), 1.0),
                      StopTest("max change", float(np.max(change, initial=0.0)), rule["eps_change"]),
