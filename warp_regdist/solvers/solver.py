@@ -488,11 +488,14 @@ def _warn_below_zero(ops, u, converged, source_sets):
 
 
 def _printer(callback):
-    """A callback that prints the progress on stderr every 2 s, then calls ``callback`` (or None)."""
+    """A callback that prints the progress on stderr every 2 s once every test has been measured (the
+    first change window), then calls ``callback`` (or None)."""
     last = [0.0]
+    measured = [False]
 
     def show(progress):
-        if progress.seconds - last[0] >= 2.0:
+        measured[0] = measured[0] or progress.checked
+        if measured[0] and progress.seconds - last[0] >= 2.0:
             last[0] = progress.seconds
             print(f"  {progress}", file=sys.stderr, flush=True)
         if callback is not None:
