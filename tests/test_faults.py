@@ -689,3 +689,13 @@ def test_the_contract_names_tests_that_exist():
         with open(os.path.join(here, module or os.path.basename(__file__))) as f:
             defined = {node.name for node in ast.walk(ast.parse(f.read())) if isinstance(node, ast.FunctionDef)}
         assert test in defined, name
+
+
+def test_single_source_progress_reports_the_last_windows_change(sphere):
+    seen = []
+    wrd.DistanceSolver(sphere, 0.05).solve([0], callback=seen.append)
+    running = [p for p in seen if p.columns_done < p.columns]           # the last report has no column left
+    change = [next(t.value for t in p.tests if t.name == "max change") for p in running]
+    window = next(p.iteration for p in seen if p.checked and p.iteration > 0)
+    assert all(c == 0.0 for c in change[:window]) and all(c > 0.0 for c in change[window:])   # kept between tests
+    assert change[-1] <= 8e-4 < change[window]                          # and shrinking to the change test's bound
