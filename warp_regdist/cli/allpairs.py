@@ -74,8 +74,8 @@ def _allpairs_progress(banner, cap=None):
             first, t0 = started[0]
             done = progress.iteration - first
             rate = (progress.seconds - t0) / done if done > 0 else 0.0
-            ahead = (f"; {rate:.3g} s an iteration, at most {_duration(rate * (cap - progress.iteration))} more "
-                     f"to the cap of {cap}" if rate > 0 and cap else "")
+            ahead = (f"; {rate:.2g} s/iteration, at most {_duration(rate * (cap - progress.iteration))} to the cap "
+                     f"{cap}" if rate > 0 and cap else "")
             print(f"  {progress}{ahead}", file=sys.stderr, flush=True)
 
     return show
