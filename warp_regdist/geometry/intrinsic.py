@@ -86,19 +86,27 @@ def _edges(faces):
     """(edge id (3m,), edges (E, 2), forward (3m,) bool) of a triangle list: halfedge 3 f + i runs from
     faces[f, i] to faces[f, (i + 1) % 3]; ``forward`` where it runs from the lower vertex to the higher."""
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    edges, edge_id = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1), axis=0, return_inverse=True)
-    return edge_id.ravel(), edges, a < b
+    n = int(faces.max(initial=0)) + 1
+    keys, edge_id = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True)   # (lo, hi) order
+    return edge_id.ravel(), np.stack([keys // n, keys % n], axis=1), a < b
 
 
-def _orientation(edge_id, forward, m):
-    """(m,) bool, the faces to reverse so that every edge with two faces is run both ways, or None where a
-    component cannot be oriented. Face f is node f (as it is) and f + m (reversed) of a graph that joins
-    the two faces of an edge as they fit; f is reversed when its reversed node has the smaller label."""
+def _pairs(edge_id):
+    """(h0, h1): the halfedges of every edge with two of them (h0 first in halfedge order)."""
     order = np.argsort(edge_id, kind="stable")
     pair = edge_id[order[1:]] == edge_id[order[:-1]]
-    h0, h1 = order[:-1][pair], order[1:][pair]
-    f, g = h0 // 3, h1 // 3
+    return order[:-1][pair], order[1:][pair]
+
+
+def _orientation(h0, h1, forward, m):
+    """(m,) bool, the faces to reverse so that every edge with two faces (its halfedges h0, h1) is run
+    both ways, or None where a component cannot be oriented. Face f is node f (as it is) and f + m
+    (reversed) of a graph that joins the two faces of an edge as they fit; f is reversed when its
+    reversed node has the smaller label."""
     fits = forward[h0] != forward[h1]
+    if fits.all():
+        return np.zeros(m, dtype=bool)
+    f, g = h0 // 3, h1 // 3
     rows = np.concatenate([f, f + m])
     cols = np.concatenate([np.where(fits, g, g + m), np.where(fits, g + m, g)])
     graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(2 * m, 2 * m))
@@ -106,16 +114,6 @@ def _orientation(edge_id, forward, m):
     if np.any(labels[:m] == labels[m:]):
         return None
     return labels[m:] < labels[:m]
-
-
-def _twins_by_edge(edge_id, forward):
-    """(3m,) twin of each halfedge of an oriented edge-manifold triangle list (-1 on the boundary)."""
-    order = np.argsort(edge_id, kind="stable")
-    pair = edge_id[order[1:]] == edge_id[order[:-1]]
-    h0, h1 = order[:-1][pair], order[1:][pair]
-    twin = np.full(edge_id.size, -1, dtype=np.int64)
-    twin[h0], twin[h1] = h1, h0
-    return twin
 
 
 def _tufted_cover(vertices, faces, edge_id, forward):
@@ -134,10 +132,9 @@ def _tufted_cover(vertices, faces, edge_id, forward):
     e /= np.linalg.norm(e, axis=1, keepdims=True)
     d = vertices[c] - vertices[lo]
     d -= np.einsum("ij,ij->i", d, e)[:, None] * e
-    order = np.argsort(edge_id, kind="stable")
-    first = np.flatnonzero(np.concatenate([[True], edge_id[order[1:]] != edge_id[order[:-1]]]))
-    reference = np.empty_like(d)
-    reference[order] = np.repeat(d[order[first]], np.diff(np.append(first, 3 * m)), axis=0)
+    first = np.empty(edge_id.max() + 1, dtype=np.int64)
+    first[edge_id[::-1]] = h[::-1]                        # each edge's first halfedge: its angles' zero
+    reference = d[first[edge_id]]
     side = np.cross(e, reference)
     angle = np.arctan2(np.einsum("ij,ij->i", d, side), np.einsum("ij,ij->i", d, reference))
     order = np.lexsort((h, angle, edge_id))               # round each edge, by angle
@@ -159,17 +156,19 @@ def _glued(vertices, faces):
     flips start from (module docstring): the mesh oriented, or its tufted cover."""
     edge_id, edges, forward = _edges(faces)
     m = faces.shape[0]
+    f, i = np.arange(3 * m) // 3, np.arange(3 * m) % 3
+    mirrored = 3 * f + (2 - i)           # halfedge i of face f reversed (corners 0, 2, 1) is its halfedge 2 - i
     if np.bincount(edge_id).max(initial=0) <= 2:
-        reverse = _orientation(edge_id, forward, m)
+        h0, h1 = _pairs(edge_id)
+        reverse = _orientation(h0, h1, forward, m)
         if reverse is not None:
+            moved = np.where(reverse[f], mirrored, 3 * f + i)      # where each halfedge lies once oriented
+            twin = np.full(3 * m, -1, dtype=np.int64)
+            twin[moved[h0]], twin[moved[h1]] = moved[h1], moved[h0]
             oriented = np.where(reverse[:, None], faces[:, [0, 2, 1]], faces)
-            edge_id, _, forward = _edges(oriented)
-            return oriented, _twins_by_edge(edge_id, forward), edge_id, edges, 1.0
+            return oriented, twin, edge_id[moved], edges, 1.0
     cover, twin = _tufted_cover(vertices, faces, edge_id, forward)
-    m3 = 3 * m
-    f, i = np.arange(m3) // 3, np.arange(m3) % 3
-    cover_ids = np.concatenate([edge_id, edge_id[3 * f + (2 - i)]])
-    return cover, twin, cover_ids, edges, 0.5
+    return cover, twin, np.concatenate([edge_id, edge_id[mirrored]]), edges, 0.5
 
 
 def _area(l0, l1, l2):
