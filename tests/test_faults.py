@@ -36,6 +36,7 @@ import pytest
 import trimesh
 
 import meshes
+from conftest import signal_after_iteration
 import warp_regdist as wrd
 import warp_regdist.atomic_write as atomic_write
 import warp_regdist.cli.allpairs as cli_allpairs
@@ -447,7 +448,6 @@ def test_the_advised_recovery_of_a_damaged_finished_matrix_gives_the_undamaged_o
 def test_a_stop_signal_keeps_the_work_of_every_solving_subcommand(sphere_file, tmp_path, capsys, monkeypatch, sig,
                                                                    status, word):
     import warp_regdist.cli.matrix as cli_matrix
-    import warp_regdist.solvers.solver as solver_module
 
     def signal_at_three(banner, cap=None):
         def show(progress):
@@ -461,20 +461,7 @@ def test_a_stop_signal_keeps_the_work_of_every_solving_subcommand(sphere_file, t
     assert code == status and f"{word} at ADMM iteration 4: the matrix written is the current iterate" in err
     with np.load(tmp_path / "run.npz") as saved:                       # the final checkpoint: nothing lost
         assert int(saved["iteration"]) == 4
-    run_iterations = solver_module.run_iterations
-
-    def signal_after_five(problem, start, max_iterations, check_every=1, poll=None):
-        advance = problem.advance
-
-        def advance_then_signal(it, count):
-            advance(it, count)
-            if it < 5 <= it + count:
-                os.kill(os.getpid(), sig)
-
-        problem.advance = advance_then_signal
-        return run_iterations(problem, start, max_iterations, check_every, poll)
-
-    monkeypatch.setattr(solver_module, "run_iterations", signal_after_five)
+    signal_after_iteration(monkeypatch, 5, sig)
     code, out, err = _cli(capsys, "distance", sphere_file, "--sources", "0", "--output", tmp_path / "u.npy")
     assert code == status and f"warp-regdist: warning: {word} at ADMM iteration" in err
     assert np.load(tmp_path / "u.npy").shape == (162,)

@@ -13,6 +13,7 @@ import pytest
 import warp._src.context as warp_context
 
 import meshes
+from conftest import signal_after_iteration
 import warp_regdist as wrd
 import warp_regdist.solvers.all_pairs_admm as ap
 import warp_regdist.atomic_write as atomic_write
@@ -150,27 +151,12 @@ def test_interrupt_returns_the_iterate_and_checkpoints(sphere642, tmp_path):
 def test_solve_many_interrupt_returns_current_iterates(monkeypatch):
     """A Ctrl-C in the parent (sent right after its own part's 5th iteration) stops the worker
     process's part too: every column returns its current iterate, flagged not converged."""
-    import warp_regdist.solvers.solver as solver_module
-
     V, F = meshes.icosphere(4, 1.0)
     solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, device="cpu", workers=2)
     sets = [[i] for i in range(16)]
-    run_iterations = solver_module.run_iterations
-
-    def ctrl_c_after_five(problem, start, max_iterations, check_every=1, poll=None):
-        advance = problem.advance
-
-        def advance_then_ctrl_c(it, count):
-            advance(it, count)
-            if it < 5 <= it + count:
-                os.kill(os.getpid(), signal.SIGINT)
-
-        problem.advance = advance_then_ctrl_c
-        return run_iterations(problem, start, max_iterations, check_every, poll)
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.ConvergenceWarning)
-        monkeypatch.setattr(solver_module, "run_iterations", ctrl_c_after_five)
+        signal_after_iteration(monkeypatch, 5, signal.SIGINT)
         res = solver.solve_many(sets, eps_rel=1e-9, eps_rel_dual=1e-9)  # would run to max_iterations
     solver.close()
     assert res.interrupted and not res.converged.any()
