@@ -153,12 +153,13 @@ def run(args: argparse.Namespace) -> int:
     elif args.polish:
         warn("--polish skipped: the ADMM did not converge, the distance written is its iterate")
     values = result.signed_distance if args.closed else result.distance
-    name = "the signed distance" if args.closed else "the distance"
+    field = "signed_distance" if args.closed else "distance"
+    called = "the " + field.replace("_", " ")
     if args.output.lower().endswith(".vtu"):
-        write_or_rescue(args.output, file_values(mesh, values), "--output", name,
-                        write=lambda target: save_vtu(target, mesh, {name[4:].replace(" ", "_"): values}))
+        write_or_rescue(args.output, file_values(mesh, values), "--output", called,
+                        write=lambda target: save_vtu(target, mesh, {field: values}))
     else:
-        write_or_rescue(args.output, file_values(mesh, values), "--output", name)
+        write_or_rescue(args.output, file_values(mesh, values), "--output", called)
     written = [args.output]
     if args.png is not None:
         marked = sources if args.sources is not None and args.sources.strip().lower() != "boundary" else None
