@@ -96,17 +96,20 @@ def check_ascii_ply_complete(path):
     """MeshError unless an ASCII PLY file holds as many data lines after its header as its ``element``
     lines declare records (one line each); binary files are checked by their reader."""
     with open(path, "rb") as f:
-        data = f.read()
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        return                                  # not a PLY header: the reader says what is wrong
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    if not any(line.split()[:2] == ["format", "ascii"] for line in header):
-        return
-    declared = [(words[1], int(words[2])) for words in (line.split() for line in header)
+        if f.read(3) != b"ply":
+            return                              # not a PLY header: the reader says what is wrong
+        header = []
+        for line in f:                          # the header, then the data lines, streamed
+            if line.strip() == b"end_header":
+                break
+            header.append(line.decode("ascii", errors="replace").split())
+        else:
+            return
+        if ["format", "ascii"] not in [words[:2] for words in header]:
+            return
+        found = sum(1 for line in f if line.strip())
+    declared = [(words[1], int(words[2])) for words in header
                 if len(words) == 3 and words[0] == "element" and words[2].isdigit()]
-    body = data[data.find(b"\n", end) + 1:] if data.find(b"\n", end) >= 0 else b""
-    found = sum(1 for line in body.splitlines() if line.strip())
     if found < sum(count for _, count in declared):
         what = " and ".join(f"{count} {name} lines" for name, count in declared)
         raise MeshError(f"expected {what} after the header of {path!r}, as it declares, got {found} lines: the file "
