@@ -38,19 +38,45 @@ def all_pairs_kernels(scalar, W):
     half = scalar(0.5)
     f = element_funcs(scalar, W)
     element_gradient, project, element_sums, add_sums = f.element_gradient, f.project, f.element_sums, f.add_sums
+    project_lane = f.project_lane
+
+    @wp.func(module=module)
+    def own_lane(elements: wp.array2d(dtype=wp.int32), e: int, c: int, b: int, col0: int):
+        """The lane of block b whose column is corner c of element e (column j's source is vertex j; the
+        blocks' first column is col0), or -1."""
+        local = elements[e, c] - col0
+        lane = int(-1)
+        if local >= 0 and local // W == b:
+            lane = local % W
+        return lane
+
+    @wp.func(module=module)
+    def project_own(elements: wp.array2d(dtype=wp.int32), directions: wp.array3d(dtype=V3), e: int, b: int,
+                    col0: int, vx: V, vy: V, vz: V):
+        """Proj_C(v) per lane: the unit ball, or the wedge at corner c on the lane of the column of corner c
+        (element_core; ``directions`` (1, 3, 2) zeros: no wedges, col0 < 0)."""
+        zx, zy, zz = project(vx, vy, vz)
+        if col0 >= 0:
+            for c in range(3):
+                l = own_lane(elements, e, c, b, col0)
+                if l >= 0:
+                    zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l, directions[e, c, 0], directions[e, c, 1])
+        return zx, zy, zz
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
                      X: wp.array2d(dtype=V), v: wp.array3d(dtype=V), rho_v: scalar, rho: scalar,
                      relaxation: scalar, DZ_acc: wp.array2d(dtype=V), DY_acc: wp.array2d(dtype=V),
-                     acc: wp.array2d(dtype=V), chunk: int, group: int, m: int):
+                     acc: wp.array2d(dtype=V), directions: wp.array3d(dtype=V3), col0: int,
+                     chunk: int, group: int, m: int):
         """Over-relaxed z- and y-steps of the column gradients on a chunk of elements:
 
             Z_old = Proj(v), Y = rho_v (v - Z_old), g = (G X)_e, h = a g + (1 - a) Z_old,
             v <- Y / rho + h   (so Z_new = Proj(v), Y_new = rho (v - Z_new)),
         scatters the divergences D Z_new and D Y_new, (D w)_i += a_e basis[e, l_i] . w_e, into
         DZ_acc and DY_acc (zero on entry; atomic adds, plain adds on the CPU), and adds per
-        lane a_e |g - Z_new|^2, a_e |g|^2, a_e |Z_new|^2 to acc rows R2, G2, Z2.
+        lane a_e |g - Z_new|^2, a_e |g|^2, a_e |Z_new|^2 to acc rows R2, G2, Z2. Proj is onto the unit
+        ball, or the wedge on a column's own triangles (:func:`project_own`).
         """
         c, g = wp.tid()
         e0, e1 = chunk_rows(c, chunk, m)
@@ -64,7 +90,7 @@ def all_pairs_kernels(scalar, W):
                 ox = v[e, 0, b]
                 oy = v[e, 1, b]
                 oz = v[e, 2, b]
-                ox_z, oy_z, oz_z = project(ox, oy, oz)
+                ox_z, oy_z, oz_z = project_own(elements, directions, e, b, col0, ox, oy, oz)
                 k = rho_v / rho
                 vx = k * (ox - ox_z) + relaxation * gx + (one - relaxation) * ox_z
                 vy = k * (oy - oy_z) + relaxation * gy + (one - relaxation) * oy_z
@@ -72,7 +98,7 @@ def all_pairs_kernels(scalar, W):
                 v[e, 0, b] = vx
                 v[e, 1, b] = vy
                 v[e, 2, b] = vz
-                zx, zy, zz = project(vx, vy, vz)
+                zx, zy, zz = project_own(elements, directions, e, b, col0, vx, vy, vz)
                 a = vol[e]
                 for l in range(3):
                     w = a * basis[e, l]
@@ -214,9 +240,10 @@ def all_pairs_kernels(scalar, W):
     @wp.kernel(enable_backward=False, module=module)
     def steepness(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3),
                   diameters: wp.array(dtype=scalar), U: wp.array2d(dtype=V), worst: wp.array(dtype=V),
-                  chunk: int, group: int, m: int):
-        """worst = max(worst, max over a chunk of elements e of (|(G U)_e| - 1)_+ diam(e)) per lane: the
-        numerator of stopping.gradient_excess (atomic max, the same on every device and in any order)."""
+                  directions: wp.array3d(dtype=V3), col0: int, chunk: int, group: int, m: int):
+        """worst = max(worst, max over a chunk of elements e of (gauge - 1)_+ diam(e)) per lane, the gauge
+        |(G U)_e| or on a column's own triangles the wedge's max(n_1 . g, n_2 . g): the numerator of
+        stopping.gradient_excess (atomic max, the same on every device and in any order)."""
         c, g = wp.tid()
         e0, e1 = chunk_rows(c, chunk, m)
         b0, b1 = group_blocks(g, group)
@@ -225,8 +252,17 @@ def all_pairs_kernels(scalar, W):
             for e in range(e0, e1):
                 gx, gy, gz = element_gradient(elements, basis, U, e, b, 3)
                 g2 = f.norm2(gx, gy, gz)
+                gauge = V()
                 for l in range(W):
-                    w[l] = wp.max(w[l], (wp.sqrt(g2[l]) - one) * diameters[e])
+                    gauge[l] = wp.sqrt(g2[l])
+                if col0 >= 0:
+                    for c in range(3):
+                        l = own_lane(elements, e, c, b, col0)
+                        if l >= 0:
+                            gl = V3(gx[l], gy[l], gz[l])
+                            gauge[l] = wp.max(wp.dot(directions[e, c, 0], gl), wp.dot(directions[e, c, 1], gl))
+                for l in range(W):
+                    w[l] = wp.max(w[l], (gauge[l] - one) * diameters[e])
             wp.atomic_max(worst, b, w)
 
     return types.SimpleNamespace(element_step=element_step, vertex_step=vertex_step,

@@ -1,5 +1,13 @@
 """The per-element core of both ADMM kernel families (single source, all pairs), and the rows of
-the per-lane accumulator their residual sums go to."""
+the per-lane accumulator their residual sums go to.
+
+The constraint set of element e in a column is the unit ball |g| <= 1, except on a triangle with
+exactly one corner s among the column's sources (``source_triangles="edges"``, docs/method.md
+section 2): there it is the wedge n_1 . g <= 1, n_2 . g <= 1, with n_k the unit vectors from s
+along its two sides (u_a = g . (x_a - x_s) <= |x_a - x_s| at the other corners a).
+``directions`` (m, 3, 2) vec3 holds, per triangle and corner c, the unit vectors to corners c + 1
+and c + 2 (mod 3) in the frame of ``basis``.
+"""
 
 import functools
 import types
@@ -23,6 +31,7 @@ def element_funcs(scalar, W):
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_element_core_{scalar.__name__}_{W}")
     one = scalar(1.0)
+    zero = scalar(0.0)
 
     @wp.func(module=module)
     def element_gradient(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), u: wp.array2d(dtype=V),
@@ -59,6 +68,37 @@ def element_funcs(scalar, W):
         return wp.cw_mul(s, vx), wp.cw_mul(s, vy), wp.cw_mul(s, vz)
 
     @wp.func(module=module)
+    def wedge_project(v: V3, n1: V3, n2: V3):
+        """The projection of v (in the triangle's plane) onto the wedge n1 . g <= 1, n2 . g <= 1: v
+        itself, its projection onto one side's line where that lies in the wedge, else the apex
+        (n1 + n2) / (1 + n1 . n2)."""
+        t1 = wp.dot(n1, v) - one
+        t2 = wp.dot(n2, v) - one
+        if t1 <= zero and t2 <= zero:
+            return v
+        if t1 > zero:
+            p1 = v - t1 * n1
+            if wp.dot(n2, p1) <= one:
+                return p1
+        if t2 > zero:
+            p2 = v - t2 * n2
+            if wp.dot(n1, p2) <= one:
+                return p2
+        return (n1 + n2) / (one + wp.dot(n1, n2))
+
+    @wp.func(module=module)
+    def project_lane(zx: V, zy: V, zz: V, vx: V, vy: V, vz: V, l: int, n1: V3, n2: V3):
+        """(zx, zy, zz) with lane l replaced by the wedge projection of lane l of v."""
+        p = wedge_project(V3(vx[l], vy[l], vz[l]), n1, n2)
+        rx = zx
+        ry = zy
+        rz = zz
+        rx[l] = p[0]
+        ry[l] = p[1]
+        rz[l] = p[2]
+        return rx, ry, rz
+
+    @wp.func(module=module)
     def element_sums(a: scalar, gx: V, gy: V, gz: V, zx: V, zy: V, zz: V):
         """Per lane the element's terms of the residual sums: a |g - z|^2, a |g|^2, a |z|^2 (rows R2, G2, Z2)."""
         return a * norm2(gx - zx, gy - zy, gz - zz), a * norm2(gx, gy, gz), a * norm2(zx, zy, zz)
@@ -71,4 +111,5 @@ def element_funcs(scalar, W):
         wp.atomic_add(acc, Z2, b, z2)
 
     return types.SimpleNamespace(element_gradient=element_gradient, ball_scale=ball_scale, norm2=norm2,
-                                 project=project, element_sums=element_sums, add_sums=add_sums)
+                                 project=project, wedge_project=wedge_project, project_lane=project_lane,
+                                 element_sums=element_sums, add_sums=add_sums)

@@ -76,17 +76,39 @@ def single_source_kernels(scalar, W, k):
     zero = scalar(0.0)
     f = element_funcs(scalar, W)
     element_gradient, project, element_sums, add_sums = f.element_gradient, f.project, f.element_sums, f.add_sums
+    project_lane = f.project_lane
+
+    @wp.func(module=module)
+    def source_corner(m0: scalar, m1: scalar, m2: scalar):
+        """The corner whose mask is 0 where exactly one of the three is (a wedge), else -1."""
+        count = int(0)
+        c = int(-1)
+        if m0 == zero:
+            count += 1
+            c = 0
+        if m1 == zero:
+            count += 1
+            c = 1
+        if m2 == zero:
+            count += 1
+            c = 2
+        if count != 1:
+            c = -1
+        return c
 
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
                      u: wp.array2d(dtype=V), rho: wp.array(dtype=V), relaxation: scalar,
-                     z: wp.array3d(dtype=V), y: wp.array3d(dtype=V),
+                     z: wp.array3d(dtype=V), y: wp.array3d(dtype=V), mask: wp.array2d(dtype=V),
+                     touched: wp.array(dtype=wp.int32), directions: wp.array3d(dtype=V3),
                      acc: wp.array2d(dtype=V), chunk: int, group: int, m: int):
         """Fused over-relaxed z- and y-steps on a chunk of elements, per column lane:
 
-            g = (G u)_e,  h = a g + (1 - a) z_old,  z_e = Proj_{|.|<=1}(y_e / rho + h),
+            g = (G u)_e,  h = a g + (1 - a) z_old,  z_e = Proj_C(y_e / rho + h),
             y_e += rho (h - z_e),
-        and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, G2, Z2.
+        and the partial sums a_e |g - z|^2, a_e |g|^2, a_e |z|^2 into acc rows R2, G2, Z2. C is the unit
+        ball, or on a ``touched`` triangle the wedge of the lanes where exactly one corner is a source
+        (mask 0; element_core).
         """
         c, g = wp.tid()
         e0, e1 = chunk_rows(c, chunk, m)
@@ -108,6 +130,15 @@ def single_source_kernels(scalar, W, k):
                 vy = wp.cw_div(y[e, 1, b], rb) + hy
                 vz = wp.cw_div(y[e, 2, b], rb) + hz
                 zx, zy, zz = project(vx, vy, vz)
+                if touched[e] != 0:
+                    s0 = mask[elements[e, 0], b]
+                    s1 = mask[elements[e, 1], b]
+                    s2 = mask[elements[e, 2], b]
+                    for l in range(W):
+                        c = source_corner(s0[l], s1[l], s2[l])
+                        if c >= 0:
+                            zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l, directions[e, c, 0],
+                                                      directions[e, c, 1])
                 y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, hx - zx)
                 y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, hy - zy)
                 y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, hz - zz)

@@ -22,7 +22,8 @@ import numpy as np
 import reference_solver as rs
 
 
-def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_tol=1e-8, triangulation="intrinsic"):
+def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_tol=1e-8, triangulation="intrinsic",
+                              source_triangles="edges"):
     """Exact minimizer U (n, n) of the all-pairs problem with raw weight ``alpha``.
 
     Parameters
@@ -38,6 +39,10 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
         Clarabel's duality-gap (absolute and relative) and feasibility tolerances.
     triangulation : {"intrinsic", "mesh"}
         As in ``reference_solver.discrete_operators``.
+    source_triangles : {"edges", "gradient"}
+        "edges": on each triangle f at vertex j, column j's (and row j's) cone is replaced by
+        U[a, j] <= l_ja at the other two corners a (``reference_solver.solve_reference``); "gradient": the
+        cone everywhere.
 
     Returns
     -------
@@ -49,11 +54,28 @@ def solve_all_pairs_reference(V, F, alpha, symmetric=False, gap_tol=1e-9, feas_t
     U = cp.Variable((n, n), symmetric=symmetric)
     sides = [U] if symmetric else [U, U.T]
     constraints = [U >= 0, cp.diag(U) == 0]
+    m = len(areas)
+    cone = np.ones((m, n), dtype=bool)       # (face, column) pairs with the cone
+    bounds = []                              # (row, column, length): U[row, column] <= length
+    if source_triangles == "edges":
+        Fi, l = rs.triangulation_lengths(V, F, triangulation)
+        for f in range(m):
+            for c in range(3):
+                j = Fi[f, c]
+                cone[f, j] = False
+                for a, opposite in (((c + 1) % 3, (c + 2) % 3), ((c + 2) % 3, (c + 1) % 3)):
+                    bounds.append((Fi[f, a], j, l[f, opposite]))
+    elif source_triangles != "gradient":
+        raise ValueError(f"expected source_triangles 'edges' or 'gradient', got {source_triangles!r}")
+    keep = np.flatnonzero(cone.ravel(order="F"))
     energy = 0
     weight = np.sqrt(areas)[:, None] * np.sqrt(A_V)[None, :]  # (m, n): sqrt(a_f A_V[j])
     for side in sides:
         comps = [Gc @ side for Gc in grads]  # 3 x (m, n): gradient of every column
-        constraints.append(cp.SOC(np.ones(len(areas) * n), cp.vstack([cp.vec(c, order="F") for c in comps]), axis=0))
+        constraints.append(cp.SOC(np.ones(keep.size), cp.vstack([cp.vec(c, order="F")[keep] for c in comps]), axis=0))
+        if bounds:
+            rows, cols, lengths = (np.array(x) for x in zip(*bounds))
+            constraints.append(side[rows, cols] <= lengths)
         energy = energy + sum(cp.sum_squares(cp.multiply(weight, c)) for c in comps)
     if symmetric:
         energy = 2 * energy  # the row term equals the column term for symmetric U

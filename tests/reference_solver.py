@@ -7,6 +7,9 @@ intrinsic Delaunay triangulation, and solves
     minimize_u   -A_V^T u + (alpha / 2) sum_f a_f |(G u)_f|^2
     subject to   |(G u)_f| <= 1 for every face f,   u_i = 0 for i in E
 
+(with ``source_triangles="edges"``, on a triangle with exactly one corner s in E the cone is replaced
+by u_a <= l_sa at its other corners a, l_sa the length of the side sa in the triangulation)
+
 with cvxpy + Clarabel (an interior-point conic solver).
 """
 
@@ -135,6 +138,21 @@ def length_geometry(n, Fi, l, weight=1.0):
     return areas, grads, A_V
 
 
+def triangulation_lengths(V, F, triangulation="intrinsic"):
+    """(Fi (m, 3), l (m, 3)) of the triangulation of :func:`discrete_operators` of a triangle mesh,
+    l[:, k] the length of the side opposite corner k."""
+    import igl
+
+    if not isinstance(triangulation, str):
+        return np.asarray(triangulation[0]), np.asarray(triangulation[1])
+    F = np.asarray(F, dtype=np.int64)
+    l0 = igl.edge_lengths(np.asarray(V, dtype=np.float64), F)
+    if triangulation == "intrinsic":
+        l, Fi = igl.intrinsic_delaunay_triangulation(l0, F)[:2]
+        return np.asarray(Fi), np.asarray(l)
+    return F, np.asarray(l0)
+
+
 def discrete_operators(V, F, triangulation="intrinsic"):
     """(areas, grads, A_V) of the problem on the mesh's own elements ("mesh"), on the intrinsic
     Delaunay triangulation (triangle meshes; tetrahedra always use their own), or on a given
@@ -146,7 +164,8 @@ def discrete_operators(V, F, triangulation="intrinsic"):
     return face_geometry(V, F)[0], gradient_matrices(V, F), vertex_areas(V, F)
 
 
-def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, triangulation="intrinsic"):
+def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, triangulation="intrinsic",
+                    source_triangles="edges"):
     """Exact minimizer of the discrete Dirichlet-regularized distance problem.
 
     Parameters
@@ -172,6 +191,10 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, t
         The triangulation of the gradient constraint, the energy and the lumped areas
         (:func:`discrete_operators`), as the package's ``triangulation``, or one given by its faces
         and lengths.
+    source_triangles : {"edges", "gradient"}
+        "edges": on each triangle with exactly one corner s among the sources, u_a <= l_sa at its other
+        corners instead of the cone (triangle meshes; tetrahedra keep the cone); "gradient": the cone
+        everywhere.
 
     Returns
     -------
@@ -196,7 +219,20 @@ def solve_reference(V, F, sources, alpha, gap_tol=1e-9, feas_tol=1e-8, W=None, t
             + cp.sum_squares(cp.multiply(w, Gz @ u))
         )
         objective = objective + 0.5 * alpha * energy
-    constraints = [cp.SOC(np.ones(len(areas)), g, axis=0), u[np.asarray(sources)] == 0]
+    cone = np.ones(len(areas), dtype=bool)
+    constraints = [u[np.asarray(sources)] == 0]
+    if source_triangles == "edges" and np.shape(F)[1] == 3:
+        Fi, l = triangulation_lengths(V, F, triangulation)
+        at = np.isin(Fi, np.asarray(sources))
+        wedge = at.sum(axis=1) == 1
+        cone[wedge] = False
+        for f in np.flatnonzero(wedge):
+            c = int(np.argmax(at[f]))
+            for a, opposite in (((c + 1) % 3, (c + 2) % 3), ((c + 2) % 3, (c + 1) % 3)):
+                constraints.append(u[Fi[f, a]] <= l[f, opposite])
+    elif source_triangles not in ("edges", "gradient"):
+        raise ValueError(f"expected source_triangles 'edges' or 'gradient', got {source_triangles!r}")
+    constraints.append(cp.SOC(np.ones(int(cone.sum())), g[:, np.flatnonzero(cone)], axis=0))
     problem = cp.Problem(cp.Minimize(objective), constraints)
     problem.solve(
         solver=cp.CLARABEL,

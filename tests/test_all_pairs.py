@@ -54,15 +54,19 @@ def test_defaults_within_one_percent_symmetric_by_construction(bumpy42, dtype, d
 
 
 def test_result_breaking_the_gradient_bound_is_not_converged(bumpy42, tmp_path):
-    """A result whose residual tests held but whose |grad U| exceeds max_gradient is reported as not
-    converged, with the largest |grad U| in the warning; a converged checkpoint resumed is checked the same way."""
+    """A result whose residual tests held but whose |grad U| relative to its bound (1, or on column j's
+    triangles at vertex j the wedge u_a <= l_ja) exceeds max_gradient is reported as not converged, with
+    that ratio in the warning; a converged checkpoint resumed is checked the same way."""
+    from warp_regdist.solvers.source_triangles import SourceTriangles
+
     mesh, _ = bumpy42
     ops = wrd.build_operators(mesh)
     res = wrd.all_pairs(mesh, 0.1, checkpoint=tmp_path / "run.npz")
     res_limit = wrd.AllPairsOptions().max_gradient
-    steepest = np.linalg.norm((ops.grad @ res.distance).reshape(mesh.n_elements, 3, -1), axis=1).max()
-    assert res.converged and 1.0 < steepest <= res_limit   # ADMM iterates meet |G U| <= 1 to about 1%
-    with pytest.warns(wrd.ConvergenceWarning, match=rf"max \|grad U\| {steepest:.3g}, above max_gradient = 1\)"):
+    plain = np.linalg.norm((ops.grad @ res.distance).reshape(mesh.n_elements, 3, -1), axis=1).max()
+    steepest = SourceTriangles(ops, "edges").max_gauge(res.distance, None).max()
+    assert plain > 1.1 and res.converged and 1.0 < steepest <= 1.02   # the wedges are steeper than 1 by design
+    with pytest.warns(wrd.ConvergenceWarning, match=rf"relative to its bound {steepest:.3g}, above max_gradient = 1\)"):
         flagged = wrd.all_pairs(mesh, 0.1, max_gradient=1.0)
     assert not flagged.converged and np.array_equal(flagged.distance, res.distance)
     with pytest.warns(wrd.ConvergenceWarning, match="although its residual tests held: not converged"):
@@ -113,7 +117,20 @@ def _full_admm(V, F, alpha_hat, iterations):
         return sum(Gc.T @ (a_f[:, None] * Yc) for Gc, Yc in zip(G, Y))
 
     def proj(P):
-        return P / np.maximum(1.0, np.linalg.norm(P, axis=0))
+        """The unit ball per face and column, and on face f at vertex j = F[f, c] (column j's source) the
+        wedge n_a . g <= 1 for the unit sides n_a from j: the nearest of v, its foot on either side's
+        line and the apex that meets both bounds."""
+        out = P / np.maximum(1.0, np.linalg.norm(P, axis=0))
+        for f in range(len(F)):
+            for c in range(3):
+                j = F[f, c]
+                n = [(V[F[f, (c + s) % 3]] - V[j]) / np.linalg.norm(V[F[f, (c + s) % 3]] - V[j]) for s in (1, 2)]
+                v = P[:, f, j]
+                apex = np.linalg.lstsq(np.array(n), np.ones(2), rcond=None)[0]
+                feet = [v - (n[k] @ v - 1.0) * n[k] for k in range(2)]
+                feasible = [p for p in [v, *feet, apex] if all(nk @ p <= 1.0 + 1e-12 for nk in n)]
+                out[:, f, j] = min(feasible, key=lambda p: np.linalg.norm(p - v))
+        return out
 
     def dirichlet_solve(K2, B):
         """Column j of the result solves K2 x = B[:, j] on the rows other than j, with x_j = 0."""
@@ -327,8 +344,10 @@ def test_warm_start_from_another_alpha_hat_reaches_the_new_minimizer(bumpy42, tm
     assert again.iterations == first.iterations and np.array_equal(again.distance, first.distance)
     cold = wrd.all_pairs(mesh, 0.1, engine="consensus")
     warm = wrd.all_pairs(mesh, 0.1, initial=path, engine="consensus")
-    assert warm.converged and warm.iterations <= cold.iterations and warm.iterations == len(warm.history)
-    # the change test cannot tell the start's head start (0.016% against 0.046% at the same stop)
+    # the change test cannot tell the start's head start: it stops within two windows of the cold start
+    # (700 against 600 iterations), 2.6 times closer (0.0096% against 0.025%)
+    window = wrd.AllPairsOptions().change_window
+    assert warm.converged and warm.iterations <= cold.iterations + 2 * window and warm.iterations == len(warm.history)
     error = [np.abs(r.distance - refs[0.1]).max() / refs[0.1].max() for r in (warm, cold)]
     assert error[0] <= 0.5 * error[1]
     assert np.array_equal(warm.distance, warm.distance.T)

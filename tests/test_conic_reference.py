@@ -71,12 +71,13 @@ def test_no_active_gradient_constraint_converges_at_defaults(device, alpha_hat):
 def test_alpha_one_converges_at_defaults(device):
     # the warm-started u-step met its fixed CG tolerance without moving, and r stalled at
     # 1.4x its tolerance for 10,000 iterations (cured by the option cg_primal_fraction)
+    # (on the grid's own triangles: its Delaunay triangulation is not unique, libigl's and the package's flips differ)
     V, F = meshes.square_grid(12)
-    res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=1.0, device=device).solve([0])
+    res = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=1.0, device=device, triangulation="mesh").solve([0])
     assert res.converged and res.iterations < 200, res.iterations
     areas, _ = rs.face_geometry(V, F)
-    expected = rs.solve_reference(V, F, [0], np.sqrt(areas.sum()))
-    assert np.abs(res.distance - expected).max() / expected.max() <= 2e-3
+    expected = rs.solve_reference(V, F, [0], np.sqrt(areas.sum()), triangulation="mesh")
+    assert np.abs(res.distance - expected).max() / expected.max() <= 2e-4
 
 
 def test_blown_up_iterate_is_not_reported_as_converged(device):

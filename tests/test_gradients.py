@@ -54,14 +54,16 @@ def smoothed_value(mesh, alpha_hat, sources, b, start):
     solver = wrd.DistanceSolver(mesh, alpha_hat, workers=1)
     free = np.ones(mesh.n_vertices, dtype=bool)
     free[sources] = False
-    problem = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing, free)
+    problem = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing, free,
+                              wedges=solver.source_triangles.corners(sources))
     return b[free] @ problem.minimize(start[free])[0]
 
 
 @pytest.mark.parametrize("kind", ["triangle", "tetrahedron"])
 def test_element_terms_and_their_reverse_pass(kind):
-    """kernels/adjoint.py: volume and Dirichlet terms equal numpy's operators; the reverse pass of a
-    weighted sum of all four outputs equals its central difference along a random displacement."""
+    """kernels/adjoint.py: volume and Dirichlet terms equal numpy's operators, the barrier terms their
+    formulas (the wedge's on the triangles given a source corner); the reverse pass of a weighted sum of
+    all four outputs equals its central difference along a random displacement."""
     from warp_regdist.kernels import adjoint
 
     rng = np.random.default_rng(0)
@@ -71,6 +73,8 @@ def test_element_terms_and_their_reverse_pass(kind):
     T = np.array([rng.choice(12, k, replace=False) for _ in range(20)])
     u, w = rng.random(12) * 0.01, rng.random(12)
     seeds = [rng.random(len(T)) for _ in range(4)]
+    corner = np.where(np.arange(len(T)) % 2 == 0, np.arange(len(T)) % 3, -1).astype(np.int32)
+    extra = [wp.array(corner, dtype=wp.int32)] if k == 3 else []
 
     def run(X, grad=False):
         x = wp.array(X, dtype=wp.vec3d, device="cpu", requires_grad=grad)
@@ -79,7 +83,7 @@ def test_element_terms_and_their_reverse_pass(kind):
         with tape:
             wp.launch(kernel, len(T), device="cpu", inputs=[x, wp.array(T.astype(np.int32), dtype=wp.int32),
                                                              wp.array(u, dtype=wp.float64),
-                                                             wp.array(w, dtype=wp.float64)], outputs=out)
+                                                             wp.array(w, dtype=wp.float64)] + extra, outputs=out)
         return x, out, tape
 
     x, out, tape = run(X, True)
@@ -89,7 +93,13 @@ def test_element_terms_and_their_reverse_pass(kind):
     np.testing.assert_allclose(out[3].numpy(), vol, rtol=1e-12)
     np.testing.assert_allclose(out[0].numpy(), -vol / k * w[T].sum(1), rtol=1e-12)
     np.testing.assert_allclose(out[1].numpy(), vol * p, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(out[2].numpy(), 2 * p / (1 - t), rtol=1e-10, atol=1e-14)
+    barrier = 2 * p / (1 - t)
+    if k == 3:
+        for e in np.flatnonzero(corner >= 0):
+            s = T[e, corner[e]]
+            barrier[e] = sum((w[a] - w[s]) / (np.linalg.norm(X[a] - X[s]) - u[a] + u[s])
+                             for a in T[e, [(corner[e] + 1) % 3, (corner[e] + 2) % 3]])
+    np.testing.assert_allclose(out[2].numpy(), barrier, rtol=1e-10, atol=1e-14)
     tape.backward(grads={o: wp.array(s, dtype=wp.float64) for o, s in zip(out, seeds)})
     D, h = rng.standard_normal(X.shape), 1e-6
 
@@ -352,8 +362,8 @@ def _refined_smoothed_value(mesh, alpha_hat, faces, bary, b, start):
     free = np.ones(R.mesh.n_vertices, dtype=bool)
     free[R.point_vertices] = False
     u = np.zeros(R.mesh.n_vertices)
-    u[free] = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing,
-                              free).minimize(start[free])[0]
+    u[free] = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing, free,
+                              wedges=solver.source_triangles.corners(R.point_vertices)).minimize(start[free])[0]
     return b @ u[:mesh.n_vertices]
 
 

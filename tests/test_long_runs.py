@@ -186,7 +186,7 @@ def test_a_checkpoint_is_checked_from_its_headers_and_read_one_array_at_a_time(s
     path = tmp_path / "run.npz"
     _quiet_all_pairs(sphere642, 0.03, max_iterations=3, device="cpu", checkpoint=path, engine="consensus")
     fingerprint = all_pairs_checkpoint.problem_fingerprint(sphere642, 0.03, "float64", wrd.AllPairsOptions().rho2_factor,
-                                                           "intrinsic", "consensus")
+                                                           "intrinsic", "edges", "consensus")
     tracemalloc.start()
     try:
         with all_pairs_checkpoint.read_checkpoint(path, fingerprint, sphere642.n_elements) as saved:

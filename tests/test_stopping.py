@@ -64,6 +64,7 @@ def test_accuracy_sets_every_tolerance():
 
 def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
     from warp_regdist.geometry.operators import element_diameters
+    from warp_regdist.solvers.source_triangles import SourceTriangles
     from warp_regdist.solvers.stopping import gradient_excess
 
     # right triangle with legs 1 and 2: diameter sqrt(5); u = (0, 3, 0) has |grad u| = 3 (slope 3 along the leg of 1)
@@ -73,33 +74,37 @@ def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
     diam = element_diameters(V, F)
     assert diam == pytest.approx([np.sqrt(5.0)])
     u = np.array([[0.0, 0.5], [3.0, 0.5], [0.0, 0.5]])  # second column: constant, no gradient
-    assert gradient_excess(ops.grad, diam, u) == pytest.approx((3.0 - 1.0) * np.sqrt(5.0) / 3.0)
-    assert gradient_excess(ops.grad, diam, np.zeros((3, 2))) == 0.0
-    assert np.isnan(gradient_excess(ops.grad, diam, np.array([[0.0], [np.nan], [1.0]])))
+    assert gradient_excess(SourceTriangles(ops, "gradient"), diam, u) == pytest.approx((3.0 - 1.0) * np.sqrt(5.0) / 3.0)
+    assert gradient_excess(SourceTriangles(ops, "gradient"), diam, np.zeros((3, 2))) == 0.0
+    assert np.isnan(gradient_excess(SourceTriangles(ops, "gradient"), diam, np.array([[0.0], [np.nan], [1.0]])))
     # distances from vertex 0 scaled to |grad| < 1 everywhere (a 1-Lipschitz function): no excess; the exact
     # minimizer's rows meet the constraint to the conic solver's tolerance
     mesh, refs = cat80
     ops = wrd.build_operators(mesh)
+    edges = SourceTriangles(ops, "edges")
     diam = element_diameters(mesh.vertices, mesh.elements)
-    assert gradient_excess(ops.grad, diam, refs[0.03], block=7) <= 1e-5
+    assert gradient_excess(edges, diam, refs[0.03], block=7) <= 1e-5
+    assert gradient_excess(SourceTriangles(ops, "gradient"), diam, refs[0.03]) > 0.5  # the wedges are steeper than 1
     steep = refs[0.03] * 1.25
-    expected = ((ops.max_gradient(steep).max() - 1.0) * diam.max()) / steep.max()
-    assert 0.0 < gradient_excess(ops.grad, diam, steep) <= expected
+    expected = ((edges.max_gauge(steep, None).max() - 1.0) * diam.max()) / steep.max()
+    assert 0.0 < gradient_excess(edges, diam, steep) <= expected
 
 
 def test_steepest_element_is_where_the_excess_is_reached(cat80):
     from warp_regdist.geometry.operators import element_diameters
+    from warp_regdist.solvers.source_triangles import SourceTriangles
     from warp_regdist.solvers.stopping import gradient_excess, steepest_element
 
     mesh, refs = cat80
     ops = wrd.build_operators(mesh)
+    edges = SourceTriangles(ops, "edges")
     diam = element_diameters(mesh.vertices, mesh.elements)
     steep = refs[0.03] * 1.25
-    excess, e, j = steepest_element(ops.grad, diam, steep, block=7)
-    assert excess == gradient_excess(ops.grad, diam, steep) > 0.0
-    g = np.linalg.norm((ops.grad @ steep[:, j]).reshape(-1, 3), axis=1)
-    assert excess == pytest.approx((g[e] - 1.0) * diam[e] / steep.max(), rel=1e-12)
-    assert steepest_element(ops.grad, diam, 0.5 * refs[0.03]) == (0.0, -1, -1)  # 1/2-Lipschitz: no excess
+    excess, e, j = steepest_element(edges, diam, steep, block=7)
+    assert excess == gradient_excess(edges, diam, steep) > 0.0
+    gauge = edges.gauge((ops.grad @ steep[:, [j]]).reshape(-1, 3, 1), [(0, [j])])[:, 0]
+    assert excess == pytest.approx((gauge[e] - 1.0) * diam[e] / steep.max(), rel=1e-12)
+    assert steepest_element(edges, diam, 0.5 * refs[0.03]) == (0.0, -1, -1)  # within half its bounds: no excess
 
 
 def test_largest_angles_of_known_triangles():
@@ -116,7 +121,8 @@ def test_unconverged_all_pairs_names_its_obtuse_steepest_triangle(cat80):
     climbs across one of them, and the warning says which, with its angle."""
     mesh, _ = cat80
     with pytest.warns(wrd.ConvergenceWarning) as caught:
-        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1, triangulation="mesh", engine="consensus")
+        res = wrd.all_pairs(mesh, 0.03, max_iterations=150, workers=1, triangulation="mesh", engine="consensus",
+                            source_triangles="gradient")
     hints = [str(w.message) for w in caught if "obtuse" in str(w.message)]
     assert not res.converged and res.gradient_excess > 0.005
     assert hints == [f"all pairs: column 78 climbs {res.gradient_excess:.3g} of max U above unit speed across "
@@ -138,9 +144,10 @@ def test_all_pairs_reads_its_settings_from_its_options(cat80):
 
 
 def test_spot_single_source_in_130_iterations_within_half_a_percent(device):
+    # the exact minimizer of the paper's problem (the unit bound on the source's triangles too)
     mesh = wrd.load_mesh(os.path.join(os.path.dirname(wrd.__file__), "data", "spot_rr.off"))
     exact = np.loadtxt(DATA / "spot_rr__2272__a0.05_exact.txt")
-    res = wrd.DistanceSolver(mesh, 0.05, device=device).solve([2272])
+    res = wrd.DistanceSolver(mesh, 0.05, device=device, source_triangles="gradient").solve([2272])
     assert res.converged and res.iterations <= 130, res.iterations
     assert _error(res.distance, exact) <= 5e-3
 

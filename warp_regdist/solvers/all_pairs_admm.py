@@ -67,6 +67,7 @@ from .all_pairs_run import PairsRun, final_result
 from .all_pairs_state import SymmetricADMM, middle_matrix
 from .memory import check_memory, memory_estimate
 from .multigrid import smoothed_aggregation
+from .source_triangles import SourceTriangles, check_source_triangles
 from .stopping import gradient_excess, steep_columns, steepest_element
 
 __all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTICES"]
@@ -110,6 +111,9 @@ class AllPairsSolver:
     triangulation : {"intrinsic", "mesh"} or None
         The triangulation of the operators, as for :class:`~warp_regdist.DistanceSolver` (None:
         "intrinsic"). U stays (n, n) over the input's vertices.
+    source_triangles : {"edges", "gradient"} or None
+        The constraint of column j on the triangles at vertex j, as for
+        :class:`~warp_regdist.DistanceSolver` (None: "edges").
 
     Attributes
     ----------
@@ -128,7 +132,7 @@ class AllPairsSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None,
-                 triangulation=None):
+                 triangulation=None, source_triangles=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         if mesh.element_dim != 2:
@@ -151,8 +155,9 @@ class AllPairsSolver:
         self.mesh, self.dtype, self.device = mesh, dtype, parse_device(device)
         self.triangulation = choose_triangulation(mesh, "dirichlet", triangulation)
         self.operators = ops = build_operators(mesh, self.triangulation)
-        self._excess = functools.partial(gradient_excess, ops.grad, ops.diameters)
-        self._steepest = functools.partial(steepest_element, ops.grad, ops.diameters)
+        self.source_triangles = SourceTriangles(ops, check_source_triangles(source_triangles, 2))
+        self._excess = functools.partial(gradient_excess, self.source_triangles, ops.diameters)
+        self._steepest = functools.partial(steepest_element, self.source_triangles, ops.diameters)
         self._penalty_mid = _penalty_mid(PenaltySchedule.of(self.options.for_engine("consensus"), ops.length_scale),
                                          ops.length_scale)
         self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device,
@@ -256,6 +261,7 @@ class AllPairsSolver:
         engine = self.engine(run_options)
         run_options = run_options.for_engine(engine)
         fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation,
+                                          self.source_triangles.rule,
                                           engine)
         size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, dtype, run_options.max_iterations)
         if checkpoint is not None:
@@ -279,10 +285,11 @@ class AllPairsSolver:
                                  f"checkpoint resumed ({os.fspath(resume)!r}), got {run_options.max_iterations}: "
                                  "the run would stop where it is")
             state = stack.enter_context(contextlib.closing(
-                EigenbasisADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self.u_step)
+                EigenbasisADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self.u_step,
+                               self.source_triangles)
                 if engine == "eigenbasis" else
                 SymmetricADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self._penalty_mid,
-                              self.workers, self._auto_workers, self.hierarchy)))
+                              self.workers, self.source_triangles, self._auto_workers, self.hierarchy)))
             saving = None if checkpoint is None else Checkpoint(checkpoint, checkpoint_seconds, fingerprint, size)
             run = PairsRun(state, run_options, PenaltySchedule.of(run_options, self.operators.length_scale), memory,
                            callback, saving, self._excess)
@@ -302,11 +309,11 @@ class AllPairsSolver:
         res.gradient_excess, element, column = self._steepest(res.distance)
         limit = options.max_gradient
         if res.converged:
-            steep, gradient = steep_columns(self.operators, res.distance, limit)
+            steep, gradient = steep_columns(self.source_triangles, res.distance, limit, None)
             if steep.any():
                 res.converged = False
-                warnings.warn(f"all-pairs ADMM returned distances that break |grad U| <= 1 (max |grad U| "
-                              f"{np.max(gradient):.3g}, above max_gradient = {limit:g}) although its residual tests "
+                warnings.warn(f"all-pairs ADMM returned distances steeper than their constraint allows (max |grad U| "
+                              f"relative to its bound {np.max(gradient):.3g}, above max_gradient = {limit:g}) although its residual tests "
                               "held: not converged; more iterations or a smaller accuracy", ConvergenceWarning,
                               stacklevel=3)
         if not res.converged and res.gradient_excess > options.eps_excess and element >= 0:
@@ -326,9 +333,10 @@ _NOT_FROM_ACCURACY = ("eps_abs", "change_window", "max_iterations", "relaxation"
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None, accuracy=None,
               callback=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, initial=None, restart=False,
-              triangulation=None, **overrides):
+              triangulation=None, source_triangles=None, **overrides):
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh:
-    ``AllPairsSolver(mesh, alpha_hat, device, dtype, workers, options, triangulation).solve(accuracy, ...)`` with the
+    ``AllPairsSolver(mesh, alpha_hat, device, dtype, workers, options, triangulation, source_triangles).solve(accuracy,
+    ...)`` with the
     other arguments and ``overrides`` (options fields) passed to :meth:`AllPairsSolver.solve`.
 
     Returns
@@ -336,7 +344,7 @@ def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, 
     AllPairsResult
     """
     solver = AllPairsSolver(mesh, alpha_hat, device=device, dtype=dtype, workers=workers, options=options,
-                            triangulation=triangulation)
+                            triangulation=triangulation, source_triangles=source_triangles)
     return solver.solve(accuracy=accuracy, callback=callback, checkpoint=checkpoint,
                         checkpoint_seconds=checkpoint_seconds, resume=resume, initial=initial, restart=restart,
                         **overrides)

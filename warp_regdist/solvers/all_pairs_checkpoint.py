@@ -115,11 +115,12 @@ def check_no_progress(checkpoint, resume, flags=("checkpoint", "resume=", "resta
                      f"{flags[1]}{path!r} continues it, {flags[2]} discards it")
 
 
-def problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor, triangulation, engine):
+def problem_fingerprint(mesh, alpha_hat, dtype, rho2_factor, triangulation, source_triangles, engine):
     """What identifies the problem of a checkpoint (JSON-able dict): the engine too, whose iterates
     another engine does not continue."""
     return dict(mesh_sha256=mesh.sha256(), n_vertices=int(mesh.n_vertices), alpha_hat=float(alpha_hat),
-                dtype=dtype, rho2_factor=float(rho2_factor), triangulation=triangulation, engine=engine)
+                dtype=dtype, rho2_factor=float(rho2_factor), triangulation=triangulation,
+                source_triangles=source_triangles, engine=engine)
 
 
 def read_checkpoint(path, fingerprint, n_elements, keys=None, role="resume"):

@@ -134,8 +134,8 @@ class EigenbasisADMM(PairsState):
 
     engine = "eigenbasis"
 
-    def __init__(self, ops, alpha_hat, device, dtype, options, u_step):
-        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, None, 1)
+    def __init__(self, ops, alpha_hat, device, dtype, options, u_step, constraints):
+        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, None, 1, constraints)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:self.n] = setup.vertex_volumes
@@ -147,16 +147,19 @@ class EigenbasisADMM(PairsState):
                        for name, (shape, _) in setup.state_specs().items()
                        if name in ("U", "H", "DZ", "DZ_acc", "DY_acc", "v", "acc", "steep")}
         self.arrays["X"] = self.arrays["U"]
-        self.mesh = mesh = DeviceMesh(ops, sc, device)
+        self.mesh = mesh = DeviceMesh(ops, sc, device, constraints.directions)
+        col0 = 0 if constraints.active else -1
         k = all_pairs_kernels(sc, setup.W)
         nb, m = setup.nb, self.m
         span = thread_span(device, nb, nb, m)
         a = self.arrays
         self.element = wp.launch(k.element_step, row_dim(m, span, nb), device=device, record_cmd=True,
                                  inputs=[mesh.elements, mesh.basis, mesh.volumes, a["U"], a["v"], sc(1.0), sc(1.0),
-                                         sc(setup.relaxation), a["DZ_acc"], a["DY_acc"], a["acc"], *span, m])
+                                         sc(setup.relaxation), a["DZ_acc"], a["DY_acc"], a["acc"], mesh.directions, col0,
+                                         *span, m])
         self.steep = wp.launch(k.steepness, row_dim(m, span, nb), device=device, record_cmd=True,
-                               inputs=[mesh.elements, mesh.basis, mesh.diameters, a["U"], a["steep"], *span, m])
+                               inputs=[mesh.elements, mesh.basis, mesh.diameters, a["U"], a["steep"], mesh.directions,
+                                       col0, *span, m])
         self.rho_v = 1.0
         self.penalties = None
         self._areas = setup.vertex_volumes.astype(np.float64)

@@ -41,10 +41,12 @@ class _Setup:
     """Host data that every part of the iteration needs (pickled to the worker processes): the
     operators ``ops``, the X-step matrix at the penalty ``penalty_mid`` (units of L) and its multigrid
     ``hierarchy`` when the caller has it (built here otherwise; neither with ``penalty_mid`` None, for
-    an engine without X-step), the split into ``parts``."""
+    an engine without X-step), the split into ``parts``, and the elements' ``constraints`` (a
+    :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` of ``ops``)."""
 
-    def __init__(self, ops, alpha_hat, dtype, options, penalty_mid, parts, hierarchy=None):
+    def __init__(self, ops, alpha_hat, dtype, options, penalty_mid, parts, constraints, hierarchy=None):
         self.operators = ops
+        self.constraints = constraints
         self.n, self.m = ops.vertex_volumes.size, ops.element_volumes.size
         self.dtype = dtype
         self.vertex_volumes = ops.vertex_volumes
@@ -143,7 +145,8 @@ class _Part:
 
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes
-        self.mesh = mesh = DeviceMesh(setup.operators, sc, dev)
+        self.mesh = mesh = DeviceMesh(setup.operators, sc, dev, setup.constraints.directions)
+        col0 = b0 * W if setup.constraints.active else -1   # the first column of these blocks (-1: no wedges)
         self._arrays = dict(lane_areas=wp.array(area.reshape(nb, W), dtype=V, device=dev),
                             mask=_free_entries(n, b0, b1, W, V, dev))
         a = self._arrays
@@ -160,10 +163,11 @@ class _Part:
         self.element = wp.launch(lane_step.element_step, row_dim(m, span, lanes), device=dev, record_cmd=True,
                                  inputs=[mesh.elements, mesh.basis, mesh.volumes, self.X, view("v", slice(None), slice(None)),
                                          sc(1.0), sc(1.0), sc(setup.relaxation), view("DZ_acc", slice(None)),
-                                         view("DY_acc", slice(None)), view("acc", slice(None)), *span, m])
+                                         view("DY_acc", slice(None)), view("acc", slice(None)), mesh.directions,
+                                         col0, *span, m])
         self.steep = wp.launch(lane_step.steepness, row_dim(m, span, lanes), device=dev, record_cmd=True,
                                inputs=[mesh.elements, mesh.basis, mesh.diameters, view("U", slice(None)), view("steep"),
-                                       *span, m])
+                                       mesh.directions, col0, *span, m])
         self.consensus = wp.launch(k.consensus_step, (i1 - i0, nb), device=dev, record_cmd=True, inputs=[
             arrays["X"], arrays["U"], arrays["H"], a["lane_areas"], sc(1.0), sc(setup.relaxation),
             arrays["acc_pairs"], i0, n]) if i1 > i0 else None
@@ -220,11 +224,11 @@ class PairsState:
         return worst / top if top > 0 else 0.0
 
     def divergences_from_element_state(self):
-        """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v), Y' = v - Z), on the host:
-        what the last element step scattered (D = G^T M_F, (n, 3m))."""
+        """DZ_acc = DZ = D Z and DY_acc = rho_v D Y' from v (Z = Proj(v) onto each element's constraint set,
+        Y' = v - Z), on the host: what the last element step scattered (D = G^T M_F, (n, 3m))."""
         D, m = self.setup.divergence, self.m
         v = self.view("v").astype(np.float64)
-        z = v / np.maximum(1.0, np.sqrt(np.square(v).sum(axis=1, keepdims=True)))
+        z = self.setup.constraints.project(v.reshape(m, 3, -1), 0).reshape(v.shape)
         shape = self.arrays["DZ"].numpy().shape
         dz = (D @ z.reshape(3 * m, -1)).reshape(shape)
         for name in ("DZ", "DZ_acc"):
@@ -268,14 +272,14 @@ class SymmetricADMM(PairsState):
     # 20 stopped 1.3% from the minimizer at accuracy 0.01 (docs/design/all-pairs.md)
     change_rate_cap = 0.975
 
-    def __init__(self, ops, alpha_hat, device, dtype, options, penalty_mid, workers, auto_workers=False,
+    def __init__(self, ops, alpha_hat, device, dtype, options, penalty_mid, workers, constraints, auto_workers=False,
                  hierarchy=None):
         n = ops.vertex_volumes.size
         nb = -(-n // lane_width(SCALARS[dtype], n))
         parts = 1 if device.is_cuda or not processes_available() else min(workers, nb)
         if auto_workers:  # a worker process takes a few seconds to start: from 10^6 pairs per part
             parts = max(1, min(parts, n * n // 1_000_000))
-        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, penalty_mid, parts, hierarchy)
+        self.setup = setup = _Setup(ops, alpha_hat, dtype, options, penalty_mid, parts, constraints, hierarchy)
         self.n, self.m, self.A, self.L, self.alpha = setup.n, setup.m, setup.A, setup.L, setup.alpha
         self.column_area = np.zeros(setup.nb * setup.W)
         self.column_area[:n] = setup.vertex_volumes

@@ -21,9 +21,11 @@ class DeviceMesh:
     vertex_offsets, incident : (n + 1,), (k,) int32, the elements at each vertex (CSR)
     pair_weights : (k,) vec3, a_e times the gradient of the vertex's hat function on each of them (the
         gather form of D = G^T M_F)
+    directions : (m, 3, 2) vec3, ``directions`` (the wedges' unit vectors,
+        :func:`~warp_regdist.solvers.source_triangles.corner_directions`), or (1, 3, 2) zeros without them
     """
 
-    def __init__(self, ops, scalar, device):
+    def __init__(self, ops, scalar, device, directions=None):
         V3 = wp.types.vector(3, scalar)
         self.n, self.m = ops.vertex_volumes.size, ops.element_volumes.size
         self.scalar, self.device = scalar, device
@@ -35,5 +37,8 @@ class DeviceMesh:
         offsets, incident, local = ops.vertex_elements
         self.vertex_offsets = wp.array(offsets.astype(np.int32), dtype=wp.int32, device=device)
         self.incident = wp.array(incident.astype(np.int32), dtype=wp.int32, device=device)
+        if directions is None:
+            directions = np.zeros((1, 3, 2, 3))
+        self.directions = wp.array(directions, dtype=V3, device=device)
         self.pair_weights = wp.array(ops.element_volumes[incident, None] * ops.basis[incident, local], dtype=V3,
                                      device=device)

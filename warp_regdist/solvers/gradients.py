@@ -5,6 +5,9 @@ The derivative is that of the smoothed problem
     minimize_u  F(u) = -A_V . u + (alpha / 2) sum_e a_e |g_e|^2 - mu sum_e log(1 - |g_e|^2),
     g_e = (G u)_e,  u = 0 on the sources,  alpha = alpha_hat A^(1/d),  mu = mu_hat A^(1 + 1/d) / m,
 
+where on a source's own triangle (source_triangles "edges": the wedge u_a <= l_sa at its other
+corners a) the barrier term is -mu sum_a log(1 - u_a / l_sa) instead,
+
 (m elements, A their total volume) whose minimizer u_mu is a smooth function of the vertex
 positions and alpha_hat and tends to the ADMM's minimizer as mu_hat -> 0
 (the solver's ``options.gradient_smoothing``). Its stationarity grad_u F(u_mu; x, alpha_hat) = 0 gives, for a
@@ -42,6 +45,7 @@ from ..errors import ConvergenceWarning
 from ..geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
 from ..kernels import adjoint
 from .pardiso import PardisoCholesky, PardisoError, load_mkl
+from .source_triangles import corner_sides
 
 __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
            "vector_jacobian_product"]
@@ -50,7 +54,7 @@ _START = 1e-2            # mu_hat of the first level; each level divides it by _
 _RATIO = 10.0
 _CENTERING = 10.0        # an intermediate level stops at a Newton decrement^2 / 2 <= this mu
 _MAX_NEWTON = 60         # Newton steps per level
-_INTERIOR = 1.0 - 1e-3   # the ADMM distance is scaled so that max |g| is at most this
+_INTERIOR = 1.0 - 1e-3   # the ADMM distance is scaled so that max |g| (max u_a / l_sa on wedges) is at most this
 _TO_BOUNDARY = 0.9       # a Newton step keeps at least a tenth of every element's slack 1 - |g|^2
 
 
@@ -185,11 +189,26 @@ class _HessianPattern:
 
 class SmoothedProblem:
     """The smoothed problem of one column (module docstring): operators of a Mesh (``ops``),
-    alpha, mu_hat, ``free`` (n,) bool, the vertices that are neither sources nor unreachable, and the
-    ``factorization`` of its Newton systems ("superlu" or "pardiso", :func:`factorization_backend`)."""
+    alpha, mu_hat, ``free`` (n,) bool, the vertices that are neither sources nor unreachable, the
+    ``factorization`` of its Newton systems ("superlu" or "pardiso", :func:`factorization_backend`)
+    and the column's ``wedges`` (faces (r,), source corners (r,)): its triangles with the wedge
+    constraint (:meth:`~warp_regdist.solvers.source_triangles.SourceTriangles.corners`; None: none)."""
 
-    def __init__(self, ops, alpha, mu_hat, free, factorization="superlu"):
+    def __init__(self, ops, alpha, mu_hat, free, factorization="superlu", wedges=None):
         m = ops.element_volumes.size
+        self.ball = np.ones(m, dtype=bool)
+        index = np.cumsum(free) - 1                       # vertex -> its free unknown
+        if wedges is not None and wedges[0].size:
+            faces, corners = wedges
+            self.ball[faces] = False
+            T, basis = ops.elements[faces], ops.basis[faces]
+            others = np.stack([(corners + 1) % 3, (corners + 2) % 3], axis=1)          # (r, 2)
+            rows = np.arange(faces.size)[:, None]
+            self.bound_at = index[T[rows, others]].ravel()       # u_a <= l_sa: the unknown of a, and l_sa
+            self.bound = np.linalg.norm(corner_sides(basis)[rows, corners[:, None], np.arange(2)[None, :]],
+                                        axis=-1).ravel()
+        else:
+            self.bound_at, self.bound = np.zeros(0, dtype=np.int64), np.zeros(0)
         self.ops, self.alpha = ops, float(alpha)
         self.mu = float(mu_hat) * ops.total_volume * ops.length_scale / m
         self.G = ops.grad[:, free].tocsr()
@@ -202,36 +221,64 @@ class SmoothedProblem:
         self._last = None    # the last _Factor, whose PARDISO handle the next one refactors
 
     def _g(self, v):
+        """(g = G v (m, 3), |g|^2 (m,), 1 / (1 - |g|^2) on the ball's elements and 0 on the wedges (m,))."""
         g = (self.G @ v).reshape(self.m, 3)
-        return g, np.einsum("ec,ec->e", g, g)
+        t = np.einsum("ec,ec->e", g, g)
+        inv = np.zeros(self.m)
+        inv[self.ball] = 1.0 / (1.0 - t[self.ball])
+        return g, t, inv
+
+    def _wedge_slack(self, v):
+        """l_sa - u_a of every wedge bound (2r,)."""
+        return self.bound - v[self.bound_at]
 
     def objective(self, v, mu):
-        g, t = self._g(v)
+        g, t, _ = self._g(v)
         a = self.ops.element_volumes
-        return -self.load @ v + 0.5 * self.alpha * (a @ t) - mu * np.sum(np.log1p(-t))
+        return (-self.load @ v + 0.5 * self.alpha * (a @ t) - mu * np.sum(np.log1p(-t[self.ball]))
+                - mu * np.sum(np.log(self._wedge_slack(v) / self.bound)))
+
+    def barrier_gradient(self, v):
+        """d grad F / d mu (f,): G^T (2 g_e / (1 - |g_e|^2)) on the ball's elements, 1 / (l_sa - u_a) at
+        each wedge bound's vertex."""
+        g, _, inv = self._g(v)
+        return (self.G.T @ ((2.0 * inv)[:, None] * g).ravel()
+                + np.bincount(self.bound_at, 1.0 / self._wedge_slack(v), minlength=self.load.size))
 
     def gradient_hessian(self, v, mu):
-        """grad F (f,) and H (f, f) CSR on the free vertices at v (max |g| < 1): per element
-        c_e = alpha a_e + 2 mu / (1 - |g_e|^2) and H = G^T blockdiag(c_e I + 4 mu g_e g_e^T / (1 - |g_e|^2)^2) G."""
-        g, t = self._g(v)
-        a, inv = self.ops.element_volumes, 1.0 / (1.0 - t)
-        c = a * self.alpha + 2.0 * mu * inv
-        grad = -self.load + self.G.T @ (c[:, None] * g).ravel()
-        return grad, self.hessian.matrix(c, 4.0 * mu * inv ** 2, g)
+        """grad F (f,) and H (f, f) CSR on the free vertices at v (inside the constraints): per element
+        c_e = alpha a_e + 2 mu / (1 - |g_e|^2) (alpha a_e on the wedges) and
+        H = G^T blockdiag(c_e I + 4 mu g_e g_e^T / (1 - |g_e|^2)^2) G + diag(sum of mu / (l_sa - u_a)^2 at a)."""
+        g, _, inv = self._g(v)
+        c = self.ops.element_volumes * self.alpha + 2.0 * mu * inv
+        slack = self._wedge_slack(v)
+        grad = (-self.load + self.G.T @ (c[:, None] * g).ravel()
+                + np.bincount(self.bound_at, mu / slack, minlength=self.load.size))
+        H = self.hessian.matrix(c, 4.0 * mu * inv ** 2, g)
+        if slack.size:
+            H = (H + sp.diags(np.bincount(self.bound_at, mu / slack ** 2, minlength=self.load.size))).tocsr()
+        return grad, H
 
-    def max_gradient_squared(self, v):
-        return float(np.max(self._g(v)[1], initial=0.0))
+    def max_gauge(self, v):
+        """max over elements of the constraint's gauge: |g| on the ball's, u_a / l_sa on the wedges'."""
+        g, t, _ = self._g(v)
+        wedge = np.max(v[self.bound_at] / self.bound, initial=0.0)
+        return max(float(np.sqrt(np.max(t[self.ball], initial=0.0))), float(wedge))
 
     def step_length(self, v, step, keep=1.0 - _TO_BOUNDARY):
-        """The largest s <= 1 that keeps 1 - |g + s dg|^2 >= keep (1 - |g|^2) on every element
-        (g = G v, dg = G step): the positive root of |dg|^2 s^2 + 2 (g . dg) s - (1 - keep) (1 - |g|^2)."""
-        g, t = self._g(v)
+        """The largest s <= 1 that keeps every slack at least ``keep`` times its value: 1 - |g + s dg|^2 >=
+        keep (1 - |g|^2) on the ball's elements (g = G v, dg = G step: the positive root of
+        |dg|^2 s^2 + 2 (g . dg) s - (1 - keep) (1 - |g|^2)), and l_sa - u_a - s du_a >= keep (l_sa - u_a)."""
+        g, t, _ = self._g(v)
         dg = (self.G @ step).reshape(self.m, 3)
         a, b = np.einsum("ec,ec->e", dg, dg), 2.0 * np.einsum("ec,ec->e", g, dg)
         c = -(1.0 - keep) * (1.0 - t)
         with np.errstate(divide="ignore", invalid="ignore"):
             roots = (-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)     # a > 0 > c: one positive root
-        return float(min(1.0, np.min(roots[a > 0], initial=1.0)))
+        du = step[self.bound_at]
+        rising = du > 0
+        wedge = (1.0 - keep) * self._wedge_slack(v)[rising] / du[rising]
+        return float(min(1.0, np.min(roots[(a > 0) & self.ball], initial=1.0), np.min(wedge, initial=1.0)))
 
     def _center(self, v, mu, tight):
         """Newton's method on F at mu from v until the decrement grad F . H^-1 grad F <= 2 ``tight``
@@ -258,9 +305,9 @@ class SmoothedProblem:
         reached). Where Newton's method stalls at the final mu (an element's slack 1 - |g|^2 so small
         that H's condition defeats the factorization), the last level that converges tightly is
         returned instead, with its larger mu_hat."""
-        top = self.max_gradient_squared(v)
-        if top >= _INTERIOR ** 2:
-            v = v * (_INTERIOR / np.sqrt(top))
+        top = self.max_gauge(v)
+        if top >= _INTERIOR:
+            v = v * (_INTERIOR / top)
         steps, centred = 0, []
         levels = max(0, int(np.ceil(np.log(_START / self.mu_hat) / np.log(_RATIO))))
         for level in range(levels, -1, -1):
@@ -273,8 +320,7 @@ class SmoothedProblem:
                 return v, lu, steps, self.mu_hat
             centred.append((level, v))
             # predictor along the central path's tangent du/dmu = -H^-1 d(grad F)/dmu, keeping half the slack
-            g, t = self._g(v)
-            tangent = lu.solve(self.G.T @ ((2.0 / (1.0 - t))[:, None] * g).ravel()) * (mu - mu / _RATIO)
+            tangent = lu.solve(self.barrier_gradient(v)) * (mu - mu / _RATIO)
             v = v + self.step_length(v, tangent, keep=0.5) * tangent
         for level, start in reversed(centred):
             v, lu, count, converged = self._center(start, self.mu * _RATIO ** level, 1e-20 * self.scale)
@@ -285,8 +331,9 @@ class SmoothedProblem:
                            f"(mu_hat {_START:g} to {self.mu_hat:g}) within {_MAX_NEWTON} steps")
 
 
-def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
-    """-d/dx [w . grad_u F(u; x, alpha_hat)] (n, 3) by the reverse pass of kernels/adjoint.py:
+def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat, wedges):
+    """-d/dx [w . grad_u F(u; x, alpha_hat)] (n, 3) by the reverse pass of kernels/adjoint.py (``wedges``
+    (faces, corners) the column's triangles with the wedge constraint):
     w . grad_u F = sum(load) + alpha sum(dirichlet) + mu sum(barrier), alpha = alpha_hat A^(1/d),
     mu = mu_hat A^(1 + 1/d) / m, A = sum(volume). On intrinsic operators the kernel runs on every face
     laid out flat from its lengths, and the derivative goes back through the layout and the flips."""
@@ -299,14 +346,18 @@ def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
         x, T = flat_layout(intrinsic.lengths).reshape(-1, 3), np.arange(m3).reshape(-1, 3)
         uc, wc = u[intrinsic.faces].ravel(), w[intrinsic.faces].ravel()
     m, d = T.shape[0], T.shape[1] - 1
-    kernel = adjoint.triangle_terms if d == 2 else adjoint.tetrahedron_terms
     xw = wp.array(np.ascontiguousarray(x), dtype=wp.vec3d, device="cpu", requires_grad=True)
     out = [wp.zeros(m, dtype=wp.float64, device="cpu", requires_grad=True) for _ in range(4)]
+    inputs = [xw, wp.array(T.astype(np.int32), dtype=wp.int32, device="cpu"), wp.array(uc, dtype=wp.float64, device="cpu"),
+              wp.array(wc, dtype=wp.float64, device="cpu")]
+    if d == 2:
+        corner = np.full(m, -1, dtype=np.int32)
+        corner[wedges[0]] = wedges[1]
+        inputs.append(wp.array(corner, dtype=wp.int32, device="cpu"))
     tape = wp.Tape()
     with tape:
-        wp.launch(kernel, m, device="cpu", inputs=[xw, wp.array(T.astype(np.int32), dtype=wp.int32, device="cpu"),
-                                                   wp.array(uc, dtype=wp.float64, device="cpu"),
-                                                   wp.array(wc, dtype=wp.float64, device="cpu")], outputs=out)
+        wp.launch(adjoint.triangle_terms if d == 2 else adjoint.tetrahedron_terms, m, device="cpu", inputs=inputs,
+                  outputs=out)
     dirichlet, barrier, A = (float(o.numpy().sum()) for o in out[1:])
     dirichlet, A = weight * dirichlet, weight * A
     s = A ** (1.0 / d)
@@ -323,10 +374,12 @@ def _position_gradient(mesh, ops, u, w, alpha_hat, mu_hat):
 
 class SmoothedSolution(NamedTuple):
     """u_mu of one column: ``distance`` (n,) (inf where no source reaches), ``free`` (n,) bool, the
-    factors ``lu`` of the Hessian on the free vertices, Newton ``steps``, the ``mu_hat`` reached and
-    ``change``, max |u_mu - u| / max u from the distance u it started from."""
+    ``wedges`` (faces, corners) of its source triangles, the factors ``lu`` of the Hessian on the free
+    vertices, Newton ``steps``, the ``mu_hat`` reached and ``change``, max |u_mu - u| / max u from the
+    distance u it started from."""
     distance: np.ndarray
     free: np.ndarray
+    wedges: tuple
     lu: object
     steps: int
     mu_hat: float
@@ -344,7 +397,8 @@ def smoothed_solution(solver, distance, sources, column=0, options=None):
     free = reachable.copy()
     free[sources] = False
     backend = factorization_backend(options.gradient_factorization)
-    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free, backend).minimize(
+    wedges = solver.source_triangles.corners(sources)
+    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free, backend, wedges).minimize(
         distance[free])
     if reached > mu_hat:
         warnings.warn(f"the smoothed problem of source set {column} was solved at gradient_smoothing {reached:g}, not "
@@ -354,7 +408,7 @@ def smoothed_solution(solver, distance, sources, column=0, options=None):
     u[free] = v
     top = np.max(distance[reachable], initial=0.0)
     change = float(np.abs(u[reachable] - distance[reachable]).max() / top) if top > 0 else 0.0
-    return SmoothedSolution(u, free, lu, steps, reached, change)
+    return SmoothedSolution(u, free, wedges, lu, steps, reached, change)
 
 
 def adjoint_gradients(solver, solution, b):
@@ -365,7 +419,7 @@ def adjoint_gradients(solver, solution, b):
     w = np.zeros(f.size)
     w[f] = solution.lu.solve(rhs)
     u = np.where(f, solution.distance, 0.0)
-    dx = _position_gradient(solver.mesh, solver.operators, u, w, solver.alpha_hat, solution.mu_hat)
+    dx = _position_gradient(solver.mesh, solver.operators, u, w, solver.alpha_hat, solution.mu_hat, solution.wedges)
     return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
 
 

@@ -32,8 +32,9 @@ class Workspace:
     """The device arrays of a batch of nb blocks of W lanes: (n, nb) per vertex, (m, 3, nb) per
     element, (nb,) or (rows, nb) per lane; the device-resident stopping test keeps u at the last
     change test (snapshot) and its |u - snapshot| per vertex (moved_last), the per-lane test state
-    (lane), the iterates frozen when a lane's test first held (u_out, y_out), the counters (step)
-    and the penalty table (rho_table)."""
+    (lane), the iterates frozen when a lane's test first held (u_out, y_out), the counters (step),
+    the penalty table (rho_table) and the (m,) int32 flags of the triangles at some source of the batch
+    (touched: where the element step looks for wedges)."""
 
     width: int
     u: wp.array
@@ -51,6 +52,7 @@ class Workspace:
     lane: wp.array
     step: wp.array
     rho_table: wp.array
+    touched: wp.array
     pcg: object
     y_out: wp.array | None = None
 
@@ -229,7 +231,7 @@ class ColumnBatch:
                           sc(values["shift"]), sc(values["scale"]), ws.rhs, *span, n)
         self.after_u = [
             rec(kern.element_step, elem_dim, mesh.elements, mesh.basis, mesh.volumes, ws.u, ws.rho,
-                sc(self.relaxation), ws.z, ws.y, ws.acc, *span, m),
+                sc(self.relaxation), ws.z, ws.y, ws.mask, ws.touched, mesh.directions, ws.acc, *span, m),
             rec(kern.advance, 1, ws.step, pcg.counters)]
         self.top = [
             rec(kern.vertex_divergence, vert_dim, mesh.vertex_offsets, mesh.incident, mesh.pair_weights, ws.mask,

@@ -41,6 +41,7 @@ from .processes import WorkerPool, check_workers, processes_available, watch
 from .results import DistanceResult
 from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
+from .source_triangles import SourceTriangles, check_source_triangles
 from .stopping import steep_columns
 
 __all__ = ["DistanceSolver"]
@@ -93,6 +94,12 @@ class DistanceSolver:
         triangle meshes with the Dirichlet or Hessian regularizer, "mesh" otherwise (tetrahedra,
         point clouds, the vector-field regularizer, whose field lives on the mesh's faces). Outputs
         are per input vertex either way; ``duals`` are per element of the triangulation used.
+    source_triangles : {"edges", "gradient"} or None
+        The constraint on a triangle with exactly one corner s among a column's sources: "edges" bounds
+        u at its other corners a by the side lengths, u_a <= |x_a - x_s| (the exact distance does; the
+        unit-speed bound on such a triangle takes u below 0 next to s where its angle at s is obtuse),
+        "gradient" keeps |grad u| <= 1 there as everywhere (the paper's problem). None: "edges" on
+        triangle meshes, "gradient" on tetrahedra (docs/method.md section 2).
 
     Examples
     --------
@@ -106,7 +113,8 @@ class DistanceSolver:
     """
 
     def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64", workers=None, hierarchy=None, options=None, triangulation=None):
+                 device=None, dtype="float64", workers=None, hierarchy=None, options=None, triangulation=None,
+                 source_triangles=None):
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -121,7 +129,7 @@ class DistanceSolver:
         self.workers = 1 if self.device.is_cuda or not processes_available() else workers
         self._copy_arguments = dict(alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
                                     vector_field=vector_field, dtype=dtype, options=self.options,
-                                    triangulation=triangulation)
+                                    triangulation=triangulation, source_triangles=source_triangles)
         self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
@@ -131,7 +139,8 @@ class DistanceSolver:
         self.operators = ops = build_operators(mesh, triangulation)
         self.regularizer = build_regularizer(mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
-        self.device_mesh = DeviceMesh(ops, self.scalar, self.device)
+        self.source_triangles = SourceTriangles(ops, check_source_triangles(source_triangles, mesh.element_dim))
+        self.device_mesh = DeviceMesh(ops, self.scalar, self.device, self.source_triangles.directions)
         if hierarchy is None:
             hierarchy = smoothed_aggregation(ops.stiffness)
         elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != mesh.n_vertices:
@@ -286,11 +295,12 @@ class DistanceSolver:
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
         res._attach(self, source_sets, options)
-        steep, gradient = steep_columns(self.operators, res.distance, options.max_gradient)
+        steep, gradient = steep_columns(self.source_triangles, res.distance, options.max_gradient,
+                                       [src for src, _ in sets])
         res.converged &= ~steep
         if steep.any():
-            warnings.warn(f"ADMM returned distances that break |grad u| <= 1 (max |grad u| "
-                          f"{np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
+            warnings.warn(f"ADMM returned distances steeper than their constraint allows (max |grad u| relative to "
+                          f"its bound {np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
         _warn_below_zero(self.operators, res.distance, res.converged, source_sets)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
@@ -354,6 +364,7 @@ class DistanceSolver:
                 snapshot=vertexwise[5], moved_last=vertexwise[6], u_out=vertexwise[7],
                 lane=wp.zeros((LANE_ROWS, nb), dtype=V, device=dev), step=wp.zeros(2, dtype=wp.int32, device=dev),
                 rho_table=wp.zeros(RHO_TABLE, dtype=self.scalar, device=dev),
+                touched=wp.zeros(m, dtype=wp.int32, device=dev),
                 pcg=BatchedPCG(self.operators.stiffness if self.regularizer.rescaled else self.regularizer.system(0.0),
                                self.scalar, W, nb, dev, preconditioner=self.hierarchy),
             )
@@ -395,6 +406,7 @@ class DistanceSolver:
             free[:, j] = reach
             free[src, j] = 0.0
         ws.mask.assign(free.reshape(n, nb, W))
+        ws.touched.assign(self.source_triangles.touched([src for src, _ in sets], ws.touched.shape[0]))
         for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "step"):
             getattr(ws, name).zero_()
         L = self.operators.length_scale
@@ -409,7 +421,7 @@ class DistanceSolver:
             ws.snapshot.assign(lanes(u0, nb, W))
             if y0 is not None:
                 ws.y.assign(lanes(y0, nb, W))
-                ws.z.assign(lanes(self._project_gradient(u0), nb, W))
+                ws.z.assign(lanes(self._project_gradient(u0, [src for src, _ in sets]), nb, W))
                 offset = schedule.offset_for(L * float(np.median(penalty)))
         if keep_duals and ws.y_out is None:
             ws.y_out = wp.zeros_like(ws.y)
@@ -446,10 +458,11 @@ class DistanceSolver:
             res["duals"] = y_out
         return res
 
-    def _project_gradient(self, u):
-        """z = Proj_{|.|<=1}(G u) per element and column: (n, k) -> (m, 3, k)."""
+    def _project_gradient(self, u, sources):
+        """z = G u (n, k) -> (m, 3, k) projected per element and column onto its constraint set (column j's
+        sources ``sources[j]``)."""
         g = (self.operators.grad @ u).reshape(self.operators.element_volumes.size, 3, -1)
-        return g / np.maximum(1.0, np.sqrt(np.square(g).sum(axis=1, keepdims=True)))
+        return self.source_triangles.project(g, list(enumerate(sources[:g.shape[2]])))
 
 
 NEGATIVE = 1e-6

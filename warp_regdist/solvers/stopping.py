@@ -66,31 +66,33 @@ def vertex_extrapolation(u, snapshot, moved_last, rate_cap=ESTIMATE_RATE_CAP):
     return estimate, d
 
 
-def steep_columns(operators, u, limit):
-    """(steep (k,) bool, max |G u| (k,)) of the columns of ``u`` (n, k): steep where some element's
-    |G u_j| exceeds ``limit`` or is NaN. A result whose relative stopping tests held can still break
-    the constraint |G u| <= 1 (iterations that blew up on needle-like elements, a consensus not yet
-    settled): both solvers report such columns as not converged."""
-    gradient = operators.max_gradient(u)
+def steep_columns(constraints, u, limit, sources):
+    """(steep (k,) bool, max gauge (k,)) of the columns of ``u`` (n, k), column j from vertices
+    ``sources[j]``: steep where some element's constraint gauge (|G u_j|, or the wedge's on a source's
+    triangle: :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` ``constraints``) exceeds
+    ``limit`` or is NaN. A result whose relative stopping tests held can still break its constraints
+    (iterations that blew up on needle-like elements, a consensus not yet settled): both solvers
+    report such columns as not converged."""
+    gradient = constraints.max_gauge(u, sources)
     return ~(gradient <= limit), gradient
 
 
-def gradient_excess(grad, diameters, u, block=64):
-    """The steepness of u beyond the constraint, in units of max u:
+def gradient_excess(constraints, diameters, u, block=64):
+    """The steepness of the all-pairs columns u beyond their constraints, in units of max u:
 
-        max over elements e and columns j of (|(G u_j)_e| - 1)_+ diam(e) / max u,
+        max over elements e and columns j of (gauge_ej - 1)_+ diam(e) / max u,
 
-    what column j gains across element e above unit speed (0 where every |G u_j| <= 1, or u = 0; NaN
-    where u holds NaN or inf).
-    grad: G (3m, n) sparse, row 3 e + c component c on element e; diameters (m,); u (n, k),
-    ``block`` columns at a time. The all-pairs minimizer has none: an iterate's consensus can still
-    be far from settled where its residuals and its change have become small (docs/method.md
-    section 8).
+    what column j gains across element e above its bound (0 where every gauge is <= 1, or u = 0; NaN
+    where u holds NaN or inf). The gauge is |(G u_j)_e|, or the wedge's on the triangles at vertex j
+    (column j's source; :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` ``constraints``).
+    diameters (m,); u (n, k), ``block`` columns at a time. The all-pairs minimizer has none: an
+    iterate's consensus can still be far from settled where its residuals and its change have
+    become small (docs/method.md section 8).
     """
-    return steepest_element(grad, diameters, u, block)[0]
+    return steepest_element(constraints, diameters, u, block)[0]
 
 
-def steepest_element(grad, diameters, u, block=64):
+def steepest_element(constraints, diameters, u, block=64):
     """(:func:`gradient_excess` of u, e, j): the excess and the element e and column j where it is
     reached ((-1, -1) where it is 0 or NaN)."""
     m = diameters.size
@@ -98,8 +100,8 @@ def steepest_element(grad, diameters, u, block=64):
     if not math.isfinite(top):
         return math.nan, -1, -1
     for j0 in range(0, u.shape[1], block):
-        g = np.sqrt(np.square((grad @ np.asarray(u[:, j0:j0 + block], dtype=np.float64)).reshape(m, 3, -1)).sum(axis=1))
-        over = (g - 1.0) * diameters[:, None]
+        g = (constraints.grad @ np.asarray(u[:, j0:j0 + block], dtype=np.float64)).reshape(m, 3, -1)
+        over = (constraints.gauge(g, j0) - 1.0) * diameters[:, None]
         e, j = np.unravel_index(np.argmax(over), over.shape)
         if over[e, j] > worst:
             worst, where = float(over[e, j]), (int(e), j0 + int(j))
