@@ -74,14 +74,17 @@ def test_disk_matches_closed_form(device):
 
 
 def test_unregularized_icosphere_matches_great_circle_distance(device):
-    # alpha_hat = 0: the discrete geodesic distance. Its exact discrete minimizer is 1.87%
-    # (of the maximum, pi) below the great-circle distance on this mesh, never above it:
-    # the inscribed polyhedron's paths are shorter than the sphere's.
+    # alpha_hat = 0: the discrete geodesic distance. The paper's problem is up to 1.87% (of the
+    # maximum, pi) below the great-circle distance on this mesh, never above it: the inscribed
+    # polyhedron's paths are shorter than the sphere's. The side-length bound on the source's triangles
+    # is 1.45% away, and up to 5.8e-3 above (the linear interpolant across the side opposite the
+    # source overestimates the distance to the side's interior, and the 1-Lipschitz rest carries it on)
     V, F = meshes.icosphere(4, 1.0)
     source = 0
-    solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.0, device=device, options=TIGHT)
-    res = solver.solve([source])
     exact = np.arccos(np.clip(V @ V[source], -1.0, 1.0))
-    err = np.abs(res.distance - exact).max() / exact.max()
-    assert err <= 0.02, err
-    assert np.all(res.distance <= exact + 1e-3 * np.pi)
+    for rule, bound, above in (("gradient", 0.019, 1e-3 * np.pi), ("edges", 0.015, 2e-3 * np.pi)):
+        solver = wrd.DistanceSolver(wrd.Mesh(V, F), alpha_hat=0.0, device=device, options=TIGHT, source_triangles=rule)
+        res = solver.solve([source])
+        err = np.abs(res.distance - exact).max() / exact.max()
+        assert err <= bound, (rule, err)
+        assert np.all(res.distance <= exact + above), rule

@@ -86,7 +86,7 @@ def test_blown_up_iterate_is_not_reported_as_converged(device):
     # rounding differs, the iteration stays bounded and reaches the iteration cap instead
     V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1e-7, 0.0]])
     solver = wrd.DistanceSolver(wrd.Mesh(V, [[0, 1, 2]]), device=device)
-    message = r"did not converge in 10000 iterations" if on_cuda(device) else r"break \|grad u\| <= 1"
+    message = r"did not converge in 10000 iterations" if on_cuda(device) else "steeper than their constraint allows"
     with pytest.warns(wrd.ConvergenceWarning, match=message):
         res = solver.solve([0])
     assert not res.converged

@@ -91,7 +91,8 @@ def test_cli_reads_point_files(tmp_path, capsys):
         assert main(["distance", str(tmp_path / name), "--sources", "0", "--output", str(out)]) == 0
         assert f"{name}: 500 points, " in capsys.readouterr().out
         outputs.append(np.load(out))
-    assert np.allclose(outputs[0], outputs[1], atol=1e-12) and np.allclose(outputs[0], outputs[2], atol=1e-6)
+    # the PLY holds float32 coordinates (3e-8 away), which move the distances by about 2e-5
+    assert np.allclose(outputs[0], outputs[1], atol=1e-12) and np.allclose(outputs[0], outputs[2], atol=1e-4)
     (tmp_path / "bad.xyz").write_text("1 2 3\n4 5 6\n")
     assert main(["distance", str(tmp_path / "bad.xyz"), "--sources", "0", "--output", str(out)]) == 2
     assert "expected points of shape (p, 3) with p >= 3, got shape (2, 3) in" in capsys.readouterr().err

@@ -97,6 +97,13 @@ def add_parser(sub) -> None:
         help="finish with Newton's method on the barrier-smoothed problem: within about 0.03%% of the exact "
         "minimizer, about 5 times the solve's time (vertex sources, Dirichlet regularizer; docs/method.md section 10)",
     )
+    distance.add_argument(
+        "--source-triangles",
+        choices=("edges", "gradient"),
+        default=None,
+        help="the bound on a triangle with one source corner: 'edges' u <= the side lengths from the source "
+        "(default on triangle meshes), 'gradient' |grad u| <= 1 as on every other triangle (the paper's problem)",
+    )
     max_distance_option(distance)
     max_iterations_option(distance)
     repair_option(distance)
@@ -104,18 +111,20 @@ def add_parser(sub) -> None:
 
 
 def _regularization(args: argparse.Namespace, mesh) -> dict:
-    """DistanceSolver keywords from --regularizer, --beta-hat and --directions."""
+    """DistanceSolver keywords from --regularizer, --beta-hat, --directions and --source-triangles."""
     from ..geometry.line_field import read_directions
 
     if args.directions is None:
         if args.regularizer == "vector_field":
             raise ValueError("expected --directions FILE with --regularizer vector_field, got none")
-        return {"regularizer": args.regularizer, "beta_hat": args.beta_hat}  # the solver refuses a lone beta_hat
+        return {"regularizer": args.regularizer, "beta_hat": args.beta_hat,  # the solver refuses a lone beta_hat
+                "source_triangles": args.source_triangles}
     if args.regularizer != "vector_field":
         raise ValueError(f"expected --directions only with --regularizer vector_field, "
                          f"got --regularizer {args.regularizer}")
     field = read_directions(args.directions, mesh)
-    return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field}
+    return {"regularizer": args.regularizer, "beta_hat": args.beta_hat, "vector_field": field,
+            "source_triangles": args.source_triangles}
 
 
 def run(args: argparse.Namespace) -> int:
