@@ -124,7 +124,8 @@ class SolverOptions(_Options):
         cg_primal_fraction r L^(d/2 - 1) (alpha + rho)), or below cg_rtol of the right-hand side,
         or after cg_max_iterations.
     max_gradient : float
-        A result whose |grad u| exceeds this on some element is reported as not converged.
+        A result whose |grad u| relative to its bound (1, or on a source's own triangle the side
+        lengths' wedge: ``source_triangles``) exceeds this on some element is reported as not converged.
     gradient_smoothing : float
         mu_hat of ``vjp`` and ``polish``: the barrier weight of the smoothed problem whose
         minimizer is differentiated (docs/method.md section 10).
@@ -191,7 +192,7 @@ class AllPairsOptions(_Options):
         rate and 1 / k (inf: no change test).
     eps_excess : float
         Steepness test, at the same iterations: max over elements e and columns j of
-        (|grad U_j|_e - 1)_+ diam(e) <= eps_excess max U (inf: no such test).
+        (|grad U_j|_e - 1)_+ diam(e) <= eps_excess max U, |grad U_j|_e relative to its bound (inf: no such test).
     change_window, max_iterations : int
     relaxation : float
         Over-relaxation of all three steps.
@@ -207,7 +208,8 @@ class AllPairsOptions(_Options):
     cg_fraction, cg_rtol, cg_max_iterations
         Each X-step's PCG stops at cg_fraction (|D Y_j| + |A_V| / 2) per column j.
     max_gradient : float
-        A result whose |grad U| exceeds this on some element and column is not converged.
+        A result whose |grad U| relative to its bound (as for :class:`SolverOptions`) exceeds this on some
+        element and column is not converged.
     engine : {"auto", "eigenbasis", "consensus"}
         The splitting (docs/method.md section 5): "eigenbasis", U symmetric in the primal with an
         exact dense U-step (no PCG, no consensus; O(n^3) work an iteration and (n, n) eigenvectors);
