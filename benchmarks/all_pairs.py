@@ -69,7 +69,7 @@ sys.path.append(os.path.join(HERE, "..", "research"))
 import meshes  # noqa: E402
 import warp as wp  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
-from warp_regdist.solvers.results import RESIDUAL_NAMES  # noqa: E402
+from warp_regdist.solvers.common.results import RESIDUAL_NAMES  # noqa: E402
 from report import write_csv  # noqa: E402
 from warp_regdist.metrics import symmetry_error, triangle_inequality_violations  # noqa: E402
 

@@ -19,7 +19,7 @@ and the rule's change estimate holds:
   and the consensus engine's before it counted 40) <= 0.7 e;
 - ``package``: the package's own ``error_estimate`` <= ``AllPairsOptions.for_accuracy(e).eps_change``
   (0.7 e; the larger of the capped geometric rest and the rest at a 1 / k rate,
-  warp_regdist.solvers.stopping.ExtrapolatedChangeTest, at most 20 windows (eigenbasis) or 40 (consensus)).
+  warp_regdist.solvers.common.stopping.ExtrapolatedChangeTest, at most 20 windows (eigenbasis) or 40 (consensus)).
 
 Cases: the exact minimizers of tests/data (the meshes' own triangles), the decimations of
 benchmarks/all_pairs.py ``LARGER`` (intrinsic operators) against their cached 5,000-iteration

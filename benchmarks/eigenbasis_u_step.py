@@ -42,7 +42,7 @@ import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 from warp_regdist.kernels.all_pairs import U2, X2  # noqa: E402
 from warp_regdist.kernels.element_core import G2, R2, Z2  # noqa: E402
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisADMM, EigenbasisUStep  # noqa: E402
+from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisADMM, EigenbasisUStep  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "eigenbasis_u_step.csv")
 ITERATIONS = 30

@@ -27,7 +27,7 @@ sys.path.insert(0, HERE)
 import meshes  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
-from warp_regdist.solvers.gradients import factorization_backend  # noqa: E402
+from warp_regdist.solvers.single_source.gradients import factorization_backend  # noqa: E402
 
 
 def cube_tets(n):

@@ -33,8 +33,8 @@ import warp_regdist as wrd  # noqa: E402
 from meshes import cube_sphere  # noqa: E402
 from pcg import problem  # noqa: E402
 from report import markdown_table, print_result, run_child, write_csv  # noqa: E402
-from warp_regdist.solvers import multigrid  # noqa: E402
-from warp_regdist.solvers.pcg import BatchedPCG  # noqa: E402
+from warp_regdist.linalg import multigrid  # noqa: E402
+from warp_regdist.linalg.pcg import BatchedPCG  # noqa: E402
 
 CASES = {"spot": None, "cube129": 129, "cube408": 408}
 RTOL = 1e-6
@@ -48,7 +48,7 @@ def mesh_of(case):
 
 
 def pyamg_hierarchy(K, coarse_size=256, theta=0.0):
-    """pyamg's smoothed-aggregation levels as a :class:`~warp_regdist.solvers.multigrid.Hierarchy`."""
+    """pyamg's smoothed-aggregation levels as a :class:`~warp_regdist.linalg.multigrid.Hierarchy`."""
     import pyamg
 
     ml = pyamg.smoothed_aggregation_solver(sp.csr_matrix(K), strength=("symmetric", {"theta": theta}),

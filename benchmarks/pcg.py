@@ -28,8 +28,8 @@ sys.path.insert(0, HERE)
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 from warp_regdist.kernels.lanes import SCALARS, lane_type, lane_width  # noqa: E402
-from warp_regdist.solvers.multigrid import smoothed_aggregation  # noqa: E402
-from warp_regdist.solvers.pcg import BatchedPCG  # noqa: E402
+from warp_regdist.linalg.multigrid import smoothed_aggregation  # noqa: E402
+from warp_regdist.linalg.pcg import BatchedPCG  # noqa: E402
 
 RTOL = {("multigrid", "float64"): 1e-8, ("multigrid", "float32"): 1e-4,
         ("jacobi", "float64"): 1e-4, ("jacobi", "float32"): 1e-3}

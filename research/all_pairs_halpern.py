@@ -39,8 +39,8 @@ import all_pairs as bench  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
 from warp_regdist.kernels.element_core import G2, R2, Z2  # noqa: E402
-from warp_regdist.solvers import all_pairs_admm  # noqa: E402
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisADMM  # noqa: E402
+from warp_regdist.solvers.all_pairs import solver as all_pairs_admm  # noqa: E402
+from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisADMM  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs_halpern.csv")
 VARIANTS = ("none", "halpern", "adaptive")

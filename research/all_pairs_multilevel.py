@@ -37,9 +37,9 @@ import all_pairs as bench  # noqa: E402
 import stopping  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
-from warp_regdist.solvers import all_pairs_admm  # noqa: E402
-from warp_regdist.solvers.admm import PenaltySchedule  # noqa: E402
-from warp_regdist.solvers.all_pairs_run import PairsRun  # noqa: E402
+from warp_regdist.solvers.all_pairs import solver as all_pairs_admm  # noqa: E402
+from warp_regdist.solvers.common.admm import PenaltySchedule  # noqa: E402
+from warp_regdist.solvers.all_pairs.run import PairsRun  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "all_pairs_multilevel.csv")
 VARIANTS = ("cold", "cold_high", "warm", "warm_high")

@@ -32,8 +32,8 @@ sys.path.insert(0, HERE)
 import all_pairs as bench  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
-from warp_regdist.solvers import all_pairs_admm  # noqa: E402
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep  # noqa: E402
+from warp_regdist.solvers.all_pairs import solver as all_pairs_admm  # noqa: E402
+from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisUStep  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "eigenbasis_lagged_multipliers.csv")
 REPORT_EVERY = 300

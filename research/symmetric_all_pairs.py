@@ -12,7 +12,7 @@ are split (Z = G U; the rows' follow by symmetry), so there is no consensus vari
     Z-step  Z = face projection onto |g| <= 1 of relaxed G U + Y / rho,  Y += rho (relaxed G U - Z)
 
 (M = diag(A_V), W the stiffness, D = G^T M_F; relaxation 1.7, fixed rho). The U-step is exact, the
-package's eigenbasis engine's (warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisUStep):
+package's eigenbasis engine's (warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisUStep):
 with W' = M^(-1/2) W M^(-1/2) = Phi Lambda Phi^T, X = M^(1/2) U M^(1/2) solves
 W' X + X W' = C entrywise in the eigenbasis (6 dense n x n products per iteration), and the
 diagonal's multipliers mu solve an (n + 1) system whose matrix, the diagonal of the response
@@ -54,8 +54,8 @@ import meshes  # noqa: E402
 import stopping  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
 from report import markdown_table, write_csv  # noqa: E402
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep  # noqa: E402
-from warp_regdist.solvers.multigrid import prolongator  # noqa: E402
+from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisUStep  # noqa: E402
+from warp_regdist.linalg.multigrid import prolongator  # noqa: E402
 
 LEVELS = (0.01, 0.005, 0.002)
 

@@ -28,7 +28,7 @@ the exact discrete minimizer is reached to ~5e-4 on spot, ~1e-4 on small meshes.
 def signal_after_iteration(monkeypatch, at, sig):
     """Make the single-source solves send ``sig`` to this process right after iteration ``at``
     (wrapping ``solver.run_iterations``), as a user's Ctrl-C or a scheduler's SIGTERM would."""
-    import warp_regdist.solvers.solver as solver_module
+    import warp_regdist.solvers.single_source.solver as solver_module
 
     run_iterations = solver_module.run_iterations
 

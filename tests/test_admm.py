@@ -1,4 +1,4 @@
-"""The ADMM engine's parts (warp_regdist/solvers/admm.py) on their own, and swapped into both solvers.
+"""The ADMM engine's parts (warp_regdist/solvers/common/admm.py) on their own, and swapped into both solvers.
 
 Schedules and change tests are checked on exact numbers (powers of two, hand-made columns);
 a swapped schedule must change the iterations but not the answer: the cvxpy + Clarabel
@@ -19,7 +19,7 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from conftest import TIGHT
-from warp_regdist.solvers.stopping import ChangeTest, ExtrapolatedChangeTest
+from warp_regdist.solvers.common.stopping import ChangeTest, ExtrapolatedChangeTest
 from warp_regdist import PenaltySchedule
 
 PAIRS = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
@@ -132,9 +132,9 @@ def test_extrapolated_change_test_numbers():
 def test_the_consensus_engine_counts_more_windows_to_come():
     """Its PCG U-steps creep on obtuse meshes: its change test counts up to 40 windows, the eigenbasis
     engine's (exact U-steps) 20."""
-    from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisADMM
-    from warp_regdist.solvers.all_pairs_run import PairsRun
-    from warp_regdist.solvers.all_pairs_state import SymmetricADMM
+    from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisADMM
+    from warp_regdist.solvers.all_pairs.run import PairsRun
+    from warp_regdist.solvers.all_pairs.state import SymmetricADMM
 
     for state, windows in ((SymmetricADMM, 40), (EigenbasisADMM, 20)):
         run = PairsRun(state, wrd.AllPairsOptions(), None, 0, None, None, None)
@@ -303,8 +303,8 @@ class _Countdown:
 
 
 def test_engine_loop_tests_every_check_and_stops_where_it_should():
-    from warp_regdist.solvers.admm import CONVERGED, INTERRUPTED, MAX_ITERATIONS, run_iterations
-    from warp_regdist.solvers import interrupt
+    from warp_regdist.solvers.common.admm import CONVERGED, INTERRUPTED, MAX_ITERATIONS, run_iterations
+    from warp_regdist.solvers.common import interrupt
 
     p = _Countdown(7)
     assert run_iterations(p, 0, 100, check_every=3) == (9, CONVERGED)

@@ -17,8 +17,8 @@ import pytest
 import meshes
 import reference_solver as rs
 import warp_regdist as wrd
-import warp_regdist.solvers.all_pairs_state as all_pairs_state
-import warp_regdist.solvers.memory as memory
+import warp_regdist.solvers.all_pairs.state as all_pairs_state
+import warp_regdist.solvers.all_pairs.memory as memory
 from warp_regdist.cli import main
 from warp_regdist.metrics import triangle_inequality_violations
 
@@ -57,7 +57,7 @@ def test_result_breaking_the_gradient_bound_is_not_converged(bumpy42, tmp_path):
     """A result whose residual tests held but whose |grad U| relative to its bound (1, or on column j's
     triangles at vertex j the wedge u_a <= l_ja) exceeds max_gradient is reported as not converged, with
     that ratio in the warning; a converged checkpoint resumed is checked the same way."""
-    from warp_regdist.solvers.source_triangles import SourceTriangles
+    from warp_regdist.solvers.common.source_triangles import SourceTriangles
 
     mesh, _ = bumpy42
     ops = wrd.build_operators(mesh)
@@ -389,7 +389,7 @@ def test_no_obtuse_hint_without_obtuse_triangles(bumpy42):
     from warp_regdist.geometry.operators import largest_angles
 
     mesh, _ = bumpy42
-    assert largest_angles(mesh.vertices, mesh.elements).max() < wrd.solvers.all_pairs_admm.OBTUSE_ANGLE
+    assert largest_angles(mesh.vertices, mesh.elements).max() < wrd.solvers.all_pairs.solver.OBTUSE_ANGLE
     with pytest.warns(wrd.ConvergenceWarning) as caught:
         res = wrd.all_pairs(mesh, 0.1, workers=1, max_iterations=30)
     assert not res.converged and res.gradient_excess > 0.005

@@ -1,4 +1,4 @@
-"""The eigenbasis engine of AllPairsSolver (warp_regdist/solvers/all_pairs_eigenbasis.py).
+"""The eigenbasis engine of AllPairsSolver (warp_regdist/solvers/all_pairs/eigenbasis.py).
 
 References: the interior-point minimizers of tests/data/all_pairs_bumpy42.npz (cvxpy + Clarabel on the
 full problem, tests/all_pairs_reference.py), the U-step's own equation with dense numpy operators,
@@ -13,8 +13,8 @@ import pytest
 
 import warp_regdist as wrd
 from warp_regdist.cli import allpairs as cli_allpairs
-from warp_regdist.solvers import all_pairs_admm
-from warp_regdist.solvers.all_pairs_eigenbasis import EigenbasisUStep, diagonal_response
+from warp_regdist.solvers.all_pairs import solver as all_pairs_solver
+from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisUStep, diagonal_response
 
 DATA = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
 
@@ -87,9 +87,9 @@ def test_auto_takes_eigenbasis_on_small_meshes_on_the_cpu(bumpy42):
 
 def test_auto_takes_consensus_above_the_eigenbasis_bound(bumpy42, monkeypatch):
     mesh, _ = bumpy42
-    assert all_pairs_admm.EIGENBASIS_MAX_VERTICES == 2000
+    assert all_pairs_solver.EIGENBASIS_MAX_VERTICES == 2000
     assert "auto: eigenbasis on the CPU up to 2,000 vertices" in open(cli_allpairs.__file__).read()  # --help says it
-    monkeypatch.setattr(all_pairs_admm, "EIGENBASIS_MAX_VERTICES", mesh.n_vertices - 1)
+    monkeypatch.setattr(all_pairs_solver, "EIGENBASIS_MAX_VERTICES", mesh.n_vertices - 1)
     solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu")
     assert solver.engine(solver.options) == "consensus"
 

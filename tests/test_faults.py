@@ -40,8 +40,8 @@ from conftest import signal_after_iteration
 import warp_regdist as wrd
 import warp_regdist.atomic_write as atomic_write
 import warp_regdist.cli.allpairs as cli_allpairs
-import warp_regdist.solvers.all_pairs_admm as ap
-import warp_regdist.solvers.all_pairs_run as all_pairs_run
+import warp_regdist.solvers.all_pairs.solver as ap
+import warp_regdist.solvers.all_pairs.run as all_pairs_run
 from warp_regdist.atomic_write import check_room, remove_stale_temporaries, write_atomic
 from warp_regdist.cli import main
 from warp_regdist.file_lock import FileLock

@@ -1,4 +1,4 @@
-"""Vector-Jacobian products through the solve (DistanceResult.vjp, warp_regdist/solvers/gradients.py).
+"""Vector-Jacobian products through the solve (DistanceResult.vjp, warp_regdist/solvers/single_source/gradients.py).
 
 Levels: the per-element kernels against numpy's operators and their reverse pass against
 finite differences (one element at a time, exact); the whole vjp against central differences of
@@ -21,7 +21,7 @@ import meshes
 import reference_solver as rs
 import warp_regdist as wrd
 from warp_regdist.geometry.operators import element_gradients
-from warp_regdist.solvers.gradients import SmoothedProblem
+from warp_regdist.solvers.single_source.gradients import SmoothedProblem
 
 DATA = pathlib.Path(__file__).parent / "data"
 
@@ -225,7 +225,7 @@ def test_factorizations_give_the_same_gradients(monkeypatch):
     """PARDISO's Cholesky and SuperLU on the same Newton path: gradients to 1e-6 of their largest
     entry (both refine each solve once; measured 2e-8 on spot_rr, 1e-7 on tet cubes); "auto" is
     PARDISO where MKL loads and SuperLU where it does not; PARDISO without MKL says how to install it."""
-    from warp_regdist.solvers import gradients
+    from warp_regdist.solvers.single_source import gradients
 
     with pytest.raises(ValueError, match="expected gradient_factorization as one of 'auto', 'pardiso', 'superlu', "
                                          "got 'cholmod'"):
@@ -276,7 +276,7 @@ def test_hessian_on_its_pattern_equals_the_sparse_products(case):
 
 
 def test_an_earlier_factor_of_a_refactored_handle_refuses_to_solve():
-    from warp_regdist.solvers.gradients import _Factor, factorization_backend
+    from warp_regdist.solvers.single_source.gradients import _Factor, factorization_backend
 
     if factorization_backend("auto") != "pardiso":
         pytest.skip("MKL not installed")
@@ -295,7 +295,7 @@ def test_pardiso_falls_back_to_superlu_where_a_pivot_is_not_positive():
     """A symmetric indefinite matrix with a positive diagonal (blocks [[1, 2], [2, 1]]): PARDISO's
     Cholesky refuses it (error -4), SuperLU solves it."""
     import scipy.sparse as sp
-    from warp_regdist.solvers.gradients import _Factor, factorization_backend
+    from warp_regdist.solvers.single_source.gradients import _Factor, factorization_backend
 
     if factorization_backend("auto") != "pardiso":
         pytest.skip("MKL not installed")

@@ -15,9 +15,9 @@ import warp._src.context as warp_context
 import meshes
 from conftest import signal_after_iteration
 import warp_regdist as wrd
-import warp_regdist.solvers.all_pairs_admm as ap
+import warp_regdist.solvers.all_pairs.solver as ap
 import warp_regdist.atomic_write as atomic_write
-import warp_regdist.solvers.all_pairs_checkpoint as all_pairs_checkpoint
+import warp_regdist.solvers.all_pairs.checkpoint as all_pairs_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,7 @@ def test_checkpoint_that_is_no_file_name_is_refused_before_the_run(sphere642, ro
 
 def test_checkpoints_and_change_tests_read_the_state_without_copying_it(sphere642, tmp_path, monkeypatch):
     # a copy of the whole state at every checkpoint would hold 1.5x the solver's memory for a moment
-    from warp_regdist.solvers import stopping
+    from warp_regdist.solvers.common import stopping
 
     written, compared = [], []
     savez, update = np.savez, stopping.ExtrapolatedChangeTest.update

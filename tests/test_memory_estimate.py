@@ -12,7 +12,7 @@ import gc, json, os, warnings
 import trimesh, warp as wp
 wp.config.quiet = True
 import warp_regdist as wrd
-from warp_regdist.solvers.memory import memory_estimate
+from warp_regdist.solvers.all_pairs.memory import memory_estimate
 
 def resident():
     with open("/proc/self/statm") as f:

@@ -10,8 +10,8 @@ import warp as wp
 import meshes
 import warp_regdist as wrd
 from warp_regdist.kernels.lanes import SCALARS, lane_type, lane_width
-from warp_regdist.solvers.multigrid import MultigridPreconditioner, prolongator, smoothed_aggregation
-from warp_regdist.solvers.pcg import BatchedPCG
+from warp_regdist.linalg.multigrid import MultigridPreconditioner, prolongator, smoothed_aggregation
+from warp_regdist.linalg.pcg import BatchedPCG
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,11 @@
-"""MKL PARDISO's Cholesky through ctypes (warp_regdist/solvers/pardiso.py): solves against dense
+"""MKL PARDISO's Cholesky through ctypes (warp_regdist/linalg/pardiso.py): solves against dense
 ones, its refusals; skipped where MKL is not installed (the [pardiso] extra, x86-64 only)."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from warp_regdist.solvers.pardiso import PardisoCholesky, PardisoError, load_mkl
+from warp_regdist.linalg.pardiso import PardisoCholesky, PardisoError, load_mkl
 
 try:
     load_mkl()

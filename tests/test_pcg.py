@@ -11,8 +11,8 @@ import warp_regdist as wrd
 from same_run import assert_same_run, on_cuda, same_count
 from test_multigrid import _lanes, _problem
 from warp_regdist.kernels.lanes import SCALARS, lane_type
-from warp_regdist.solvers.multigrid import smoothed_aggregation
-from warp_regdist.solvers.pcg import BatchedPCG, JacobiPreconditioner
+from warp_regdist.linalg.multigrid import smoothed_aggregation
+from warp_regdist.linalg.pcg import BatchedPCG, JacobiPreconditioner
 
 
 @pytest.fixture(scope="module")

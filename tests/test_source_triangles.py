@@ -15,7 +15,7 @@ import pytest
 
 import meshes
 import warp_regdist as wrd
-from warp_regdist.solvers.source_triangles import SourceTriangles, corner_directions, wedge_projection
+from warp_regdist.solvers.common.source_triangles import SourceTriangles, corner_directions, wedge_projection
 
 DATA = pathlib.Path(__file__).parent / "data"
 

@@ -1,5 +1,5 @@
 """The stopping rule: the error at the default stop against exact minimizers on irregular meshes, and the
-device's test against warp_regdist.solvers.stopping.
+device's test against warp_regdist.solvers.common.stopping.
 
 tests/data/stopping_cat80.npz: cat_rr quadric-decimated to 80 vertices (fast-simplification
 0.2, target_reduction 1 - 80/1949: angles from 3.8 to 171 degrees) and the exact all-pairs
@@ -64,8 +64,8 @@ def test_accuracy_sets_every_tolerance():
 
 def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
     from warp_regdist.geometry.operators import element_diameters
-    from warp_regdist.solvers.source_triangles import SourceTriangles
-    from warp_regdist.solvers.stopping import gradient_excess
+    from warp_regdist.solvers.common.source_triangles import SourceTriangles
+    from warp_regdist.solvers.common.stopping import gradient_excess
 
     # right triangle with legs 1 and 2: diameter sqrt(5); u = (0, 3, 0) has |grad u| = 3 (slope 3 along the leg of 1)
     V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0]])
@@ -92,8 +92,8 @@ def test_gradient_excess_on_one_triangle_and_on_lipschitz_columns(cat80):
 
 def test_steepest_element_is_where_the_excess_is_reached(cat80):
     from warp_regdist.geometry.operators import element_diameters
-    from warp_regdist.solvers.source_triangles import SourceTriangles
-    from warp_regdist.solvers.stopping import gradient_excess, steepest_element
+    from warp_regdist.solvers.common.source_triangles import SourceTriangles
+    from warp_regdist.solvers.common.stopping import gradient_excess, steepest_element
 
     mesh, refs = cat80
     ops = wrd.build_operators(mesh)
@@ -176,7 +176,7 @@ def test_device_error_estimate_is_the_vertex_extrapolation():
     from warp_regdist.kernels.lanes import row_dim
     from warp_regdist.kernels.single_source import (ESTIMATE, LANE_ROWS, RULE_FIELDS, SETTLED, rule_struct,
                                                     single_source_kernels)
-    from warp_regdist.solvers import stopping
+    from warp_regdist.solvers.common import stopping
 
     kern = single_source_kernels(wp.float64, 4, 3)
     n = 30
@@ -217,12 +217,12 @@ def test_device_error_estimate_is_the_vertex_extrapolation():
 
 
 def test_device_test_is_the_stopping_module_on_the_same_inputs():
-    """kernels/single_source.py admm_check against warp_regdist.solvers.stopping on random sums: the primal and
+    """kernels/single_source.py admm_check against warp_regdist.solvers.common.stopping on random sums: the primal and
     dual tolerances with their floors, the dual scale and the CG tolerance, lane by lane
     (four lanes, float64, at an iteration > 0 and with a primal term that binds in some lanes)."""
     import warp as wp
 
-    from warp_regdist.solvers import stopping
+    from warp_regdist.solvers.common import stopping
     from warp_regdist.kernels.single_source import (DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, LANE_ROWS, LOAD_NORM,
                                                     RULE_FIELDS, rule_struct, single_source_kernels)
     from warp_regdist.kernels.element_core import DY2, G2, R2, Z2

@@ -21,8 +21,8 @@ import pytest
 
 import meshes
 import warp_regdist as wrd
-import warp_regdist.solvers.solver as solver_module
-from warp_regdist.solvers.processes import processes_available
+import warp_regdist.solvers.single_source.solver as solver_module
+from warp_regdist.solvers.common.processes import processes_available
 
 pytestmark = pytest.mark.skipif(not processes_available(), reason="worker processes need Linux")
 
@@ -32,7 +32,7 @@ READY_WITHIN = 300.0  # seconds for the parent to start its workers (kernels may
 PARENT = """
 import os, sys, time, warnings
 sys.path.insert(0, {tests!r})
-import meshes, warp_regdist as wrd, warp_regdist.solvers.solver as solver_module
+import meshes, warp_regdist as wrd, warp_regdist.solvers.single_source.solver as solver_module
 warnings.simplefilter("ignore")
 
 def ready():

@@ -7,8 +7,8 @@ Regularized Geodesic Distances" (SIGGRAPH 2023) with Warp kernels (CPU and CUDA)
 import warp as _wp
 
 from . import metrics
-from .solvers.admm import PenaltySchedule
-from .solvers.all_pairs_admm import AllPairsSolver, all_pairs
+from .solvers.common.admm import PenaltySchedule
+from .solvers.all_pairs.solver import AllPairsSolver, all_pairs
 from .output.export import save_vtu
 from .geometry.line_field import line_field
 from .errors import CheckpointWarning, ConvergenceWarning, MeshError, MeshWarning, WorkerError, WriteError
@@ -19,9 +19,11 @@ from .geometry.surface_points import surface_points
 from .geometry.point_cloud import PointCloud
 from .geometry.operators import Operators, build_operators
 from .geometry.regularizers import REGULARIZERS
-from .solvers.results import AllPairsResult, DistanceResult
-from .solvers.gradients import Gradients
-from .solvers.solver import DistanceSolver
+from .solvers.common.results import AllPairsResult, DistanceResult
+from .solvers.common.progress import Progress, StopTest
+from .linalg.multigrid import Hierarchy
+from .solvers.single_source.gradients import Gradients
+from .solvers.single_source.solver import DistanceSolver
 from .matrices.source_rows import distance_matrix
 from .geometry.tetrahedralize import tetrahedralize
 from .options import AllPairsOptions, SolverOptions
@@ -47,4 +49,5 @@ __all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "repa
            "split_components", "load_mesh", "data_path", "boundary_vertices", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
-           "SolverOptions", "AllPairsOptions", "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "__version__"]
+           "SolverOptions", "AllPairsOptions", "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "Progress", "StopTest", "Hierarchy",
+           "__version__"]

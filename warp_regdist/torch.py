@@ -22,8 +22,8 @@ except ImportError as exc:  # the [torch] extra
 
 from .errors import ConvergenceWarning
 from .geometry.mesh import Mesh
-from .solvers.gradients import adjoint_gradients, smoothed_solution
-from .solvers.solver import DistanceSolver
+from .solvers.single_source.gradients import adjoint_gradients, smoothed_solution
+from .solvers.single_source.solver import DistanceSolver
 
 __all__ = ["distance"]
 

@@ -24,7 +24,7 @@ import sys
 from . import allpairs, demo, distance, matrix, view, volume
 from ..errors import WorkerError
 from ..file_lock import FileLock
-from ..solvers.interrupt import sigterm_raises
+from ..solvers.common.interrupt import sigterm_raises
 from .common import EXIT_STATUS, PROG, quiet_warp, stop_status, stop_word
 
 __all__ = ["main"]

@@ -91,7 +91,7 @@ def _duration(seconds: float) -> str:
 def run(args: argparse.Namespace) -> int:
     from .. import AllPairsOptions, AllPairsSolver, ConvergenceWarning
     from ..atomic_write import check_room
-    from ..solvers.all_pairs_checkpoint import check_no_progress, checkpoint_bytes, checkpoint_room
+    from ..solvers.all_pairs.checkpoint import check_no_progress, checkpoint_bytes, checkpoint_room
 
     check_output(args.output, (".npy",), "--output")
     if args.checkpoint is not None:

@@ -38,7 +38,7 @@ exit status (the same for every subcommand):
 
 def stop_status() -> int:
     """The exit status of a stopped run: 143 for SIGTERM, else 130 (Ctrl-C)."""
-    from ..solvers.interrupt import stopped_by
+    from ..solvers.common.interrupt import stopped_by
 
     return 143 if stopped_by() == signal.SIGTERM else 130
 

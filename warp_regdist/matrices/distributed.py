@@ -21,7 +21,7 @@ import numpy as np
 
 from .matrix_store import average_source_pairs
 from ..errors import ConvergenceWarning
-from ..solvers.solver import DistanceSolver
+from ..solvers.single_source.solver import DistanceSolver
 from .row_solves import solve_rows
 
 __all__ = ["check_client", "solve_blocks", "lazy_matrix"]

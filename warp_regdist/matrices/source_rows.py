@@ -30,7 +30,7 @@ from ..geometry.surface_points import check_surface_points, refine
 from ..errors import ConvergenceWarning
 from .row_solves import solve_rows
 from ..options import SolverOptions
-from ..solvers.solver import DistanceSolver
+from ..solvers.single_source.solver import DistanceSolver
 
 __all__ = ["distance_matrix"]
 

@@ -250,7 +250,7 @@ def smoothed_aggregation(matrix, theta=0.5, coarse_size=256, max_levels=20, seed
 
 class MultigridPreconditioner:
     """z = M_0 r with a :class:`Hierarchy`'s V-cycle on a Warp device, a preconditioner of
-    :class:`~warp_regdist.solvers.pcg.BatchedPCG` for (n, nb) lane-vector columns.
+    :class:`~warp_regdist.linalg.pcg.BatchedPCG` for (n, nb) lane-vector columns.
 
     Each PCG needs its own (it holds the coarse levels' (n_l, nb) vectors); one Hierarchy
     can serve many. A one-level hierarchy (n <= coarse size) applies its dense

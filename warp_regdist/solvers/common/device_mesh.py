@@ -22,7 +22,7 @@ class DeviceMesh:
     pair_weights : (k,) vec3, a_e times the gradient of the vertex's hat function on each of them (the
         gather form of D = G^T M_F)
     directions : (m, 3, 2) vec3, ``directions`` (the wedges' unit vectors,
-        :func:`~warp_regdist.solvers.source_triangles.corner_directions`), or (1, 3, 2) zeros without them
+        :func:`~warp_regdist.solvers.common.source_triangles.corner_directions`), or (1, 3, 2) zeros without them
     """
 
     def __init__(self, ops, scalar, device, directions=None):

@@ -11,7 +11,7 @@ window, and its error estimate :func:`vertex_extrapolation`) or :class:`Extrapol
 and :func:`gradient_excess`). The u-step's PCG stops at :func:`cg_tolerance`.
 
 DistanceSolver runs this rule on the device (kernels/single_source.py ``change_measure`` and
-``admm_check``, with the constants of ``single_source_batch.DeviceRule``); the tests run the
+``admm_check``, with the constants of ``single_source.batch``); the tests run the
 kernel and these functions on the same inputs. all_pairs runs it on the host.
 """
 
@@ -69,7 +69,7 @@ def vertex_extrapolation(u, snapshot, moved_last, rate_cap=ESTIMATE_RATE_CAP):
 def steep_columns(constraints, u, limit, sources):
     """(steep (k,) bool, max gauge (k,)) of the columns of ``u`` (n, k), column j from vertices
     ``sources[j]``: steep where some element's constraint gauge (|G u_j|, or the wedge's on a source's
-    triangle: :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` ``constraints``) exceeds
+    triangle: :class:`~warp_regdist.solvers.common.source_triangles.SourceTriangles` ``constraints``) exceeds
     ``limit`` or is NaN. A result whose relative stopping tests held can still break its constraints
     (iterations that blew up on needle-like elements, a consensus not yet settled): both solvers
     report such columns as not converged."""
@@ -84,7 +84,7 @@ def gradient_excess(constraints, diameters, u, block=64):
 
     what column j gains across element e above its bound (0 where every gauge is <= 1, or u = 0; NaN
     where u holds NaN or inf). The gauge is |(G u_j)_e|, or the wedge's on the triangles at vertex j
-    (column j's source; :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` ``constraints``).
+    (column j's source; :class:`~warp_regdist.solvers.common.source_triangles.SourceTriangles` ``constraints``).
     diameters (m,); u (n, k), ``block`` columns at a time. The all-pairs minimizer has none: an
     iterate's consensus can still be far from settled where its residuals and its change have
     become small (docs/method.md section 8).

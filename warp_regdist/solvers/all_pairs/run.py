@@ -1,4 +1,4 @@
-"""One all-pairs ADMM run on a :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM`: the iteration
+"""One all-pairs ADMM run on a :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM`: the iteration
 loop, the seven residuals, the change and steepness tests of docs/method.md section 8, checkpoints and
 the result."""
 
@@ -12,15 +12,15 @@ import warnings
 
 import numpy as np
 
-from . import interrupt
-from .admm import CONVERGED, INTERRUPTED, run_iterations
-from .all_pairs_state import STATE_ROWS
-from ..errors import ConvergenceWarning
-from ..kernels.all_pairs import H2, RX2, SX2, U2, X2
-from .processes import check_workers
-from .progress import Progress, StopTest
-from .stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
-from .results import AllPairsResult
+from ..common import interrupt
+from ..common.admm import CONVERGED, INTERRUPTED, run_iterations
+from .state import STATE_ROWS
+from ...errors import ConvergenceWarning
+from ...kernels.all_pairs import H2, RX2, SX2, U2, X2
+from ..common.processes import check_workers
+from ..common.progress import Progress, StopTest
+from ..common.stopping import ExtrapolatedChangeTest, cg_tolerance, dual_scale, tolerance
+from ..common.results import AllPairsResult
 
 __all__ = ["PairsRun", "final_result"]
 
@@ -173,7 +173,7 @@ class PairsRun:
         return False
 
     def tests(self):
-        """The stopping rule's parts at the last test, as :class:`~warp_regdist.solvers.progress.StopTest`."""
+        """The stopping rule's parts at the last test, as :class:`~warp_regdist.solvers.common.progress.StopTest`."""
         tol = self.options
         return (StopTest("max residual/tolerance", float(np.max(self.res / np.maximum(self.eps, 1e-300))), 1.0),
                 StopTest("change to come", float(self.change_test.change[0]), tol.eps_change),
@@ -190,7 +190,7 @@ class PairsRun:
             self.top(j + 1)
 
     def iterate(self, t0):
-        """The loop (:func:`~warp_regdist.solvers.admm.run_iterations`) from ``self.start``; the AllPairsResult."""
+        """The loop (:func:`~warp_regdist.solvers.common.admm.run_iterations`) from ``self.start``; the AllPairsResult."""
         self.t0 = t0
         self.last_save = time.perf_counter()
         # Floors of the dual scales |D Y M_V| and |S_V H S_V|: the load (1/2) A_V 1^T that D Y and

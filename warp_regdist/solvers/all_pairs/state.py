@@ -1,4 +1,4 @@
-"""The state of the symmetric all-pairs ADMM (:mod:`warp_regdist.solvers.all_pairs_admm`) and its steps,
+"""The state of the symmetric all-pairs ADMM (:mod:`warp_regdist.solvers.all_pairs.solver`) and its steps,
 split among CPU processes: the operators every part shares (``Setup``),
 one part's arrays, PCG and launches (``_Part``), and the whole state with its worker processes
 (``SymmetricADMM``)."""
@@ -11,14 +11,14 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from ..kernels.all_pairs import all_pairs_kernels
-from ..kernels.element_core import DY2, G2, R2, S2, Z2
-from ..kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
-from .device_mesh import DeviceMesh
-from .multigrid import smoothed_aggregation
-from .pcg import BatchedPCG
-from .processes import SharedArrays, WorkerPool, processes_available
-from .stopping import ESTIMATE_RATE_CAP
+from ...kernels.all_pairs import all_pairs_kernels
+from ...kernels.element_core import DY2, G2, R2, S2, Z2
+from ...kernels.lanes import SCALARS, lane_type, lane_width, row_dim, thread_span
+from ..common.device_mesh import DeviceMesh
+from ...linalg.multigrid import smoothed_aggregation
+from ...linalg.pcg import BatchedPCG
+from ..common.processes import SharedArrays, WorkerPool, processes_available
+from ..common.stopping import ESTIMATE_RATE_CAP
 
 __all__ = ["PairsState", "SymmetricADMM", "middle_matrix", "STATE_ROWS"]
 
@@ -42,7 +42,7 @@ class _Setup:
     operators ``ops``, the X-step matrix at the penalty ``penalty_mid`` (units of L) and its multigrid
     ``hierarchy`` when the caller has it (built here otherwise; neither with ``penalty_mid`` None, for
     an engine without X-step), the split into ``parts``, and the elements' ``constraints`` (a
-    :class:`~warp_regdist.solvers.source_triangles.SourceTriangles` of ``ops``)."""
+    :class:`~warp_regdist.solvers.common.source_triangles.SourceTriangles` of ``ops``)."""
 
     def __init__(self, ops, alpha_hat, dtype, options, penalty_mid, parts, constraints, hierarchy=None):
         self.operators = ops
@@ -200,11 +200,11 @@ class _Part:
 
 class PairsState:
     """What the all-pairs engines' states share (:class:`SymmetricADMM`, and
-    :class:`~warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisADMM`): the state ``arrays`` in lanes of
+    :class:`~warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisADMM`): the state ``arrays`` in lanes of
     ``setup.W`` columns, read and written as numpy, and the steepness of U (``_steepness`` launches it).
 
     ``change_rate_cap`` is the engine's q_max of the change test
-    (:class:`~warp_regdist.solvers.stopping.ExtrapolatedChangeTest`): the change still to come counts at
+    (:class:`~warp_regdist.solvers.common.stopping.ExtrapolatedChangeTest`): the change still to come counts at
     most 1 / (1 - q_max) windows."""
 
     change_rate_cap = ESTIMATE_RATE_CAP
@@ -213,7 +213,7 @@ class PairsState:
         """End the worker processes (none by default)."""
 
     def gradient_excess(self, top):
-        """:func:`~warp_regdist.solvers.stopping.gradient_excess` of U, whose max is ``top``, on the device:
+        """:func:`~warp_regdist.solvers.common.stopping.gradient_excess` of U, whose max is ``top``, on the device:
         max over elements e and columns j of (|(G U_j)_e| - 1)_+ diam(e) / top (0 where top is 0, NaN
         where it is not finite)."""
         if not math.isfinite(top):
@@ -262,7 +262,7 @@ class SymmetricADMM(PairsState):
 
     On the CPU the iteration is split into up to ``workers`` parts (by default at most one
     per 10^6 pairs), each run by its own process on state in shared memory (a CPU launch runs on one
-    core): the part in this process and the others in :class:`~warp_regdist.solvers.processes.WorkerPool`
+    core): the part in this process and the others in :class:`~warp_regdist.solvers.common.processes.WorkerPool`
     workers meet three times per iteration. Every sum that decides the iteration is made per
     column or per consensus tile row, so the iterates do not depend on the split.
     """

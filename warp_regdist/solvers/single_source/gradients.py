@@ -41,11 +41,11 @@ import scipy.sparse.linalg as spla
 import warp as wp
 from scipy.optimize import OptimizeResult
 
-from ..errors import ConvergenceWarning
-from ..geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
-from ..kernels import adjoint
-from .pardiso import PardisoCholesky, PardisoError, load_mkl
-from .source_triangles import corner_sides
+from ...errors import ConvergenceWarning
+from ...geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
+from ...kernels import adjoint
+from ...linalg.pardiso import PardisoCholesky, PardisoError, load_mkl
+from ..common.source_triangles import corner_sides
 
 __all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
            "vector_jacobian_product"]
@@ -192,7 +192,7 @@ class SmoothedProblem:
     alpha, mu_hat, ``free`` (n,) bool, the vertices that are neither sources nor unreachable, the
     ``factorization`` of its Newton systems ("superlu" or "pardiso", :func:`factorization_backend`)
     and the column's ``wedges`` (faces (r,), source corners (r,)): its triangles with the wedge
-    constraint (:meth:`~warp_regdist.solvers.source_triangles.SourceTriangles.corners`; None: none)."""
+    constraint (:meth:`~warp_regdist.solvers.common.source_triangles.SourceTriangles.corners`; None: none)."""
 
     def __init__(self, ops, alpha, mu_hat, free, factorization="superlu", wedges=None):
         m = ops.element_volumes.size

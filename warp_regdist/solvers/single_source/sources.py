@@ -12,10 +12,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
-from ..geometry.boundary_refinement import refine_boundary
-from ..geometry.mesh import boundary_surface
-from ..geometry.curves import trace_curve
-from ..geometry.surface_points import check_surface_points, refine
+from ...geometry.boundary_refinement import refine_boundary
+from ...geometry.mesh import boundary_surface
+from ...geometry.curves import trace_curve
+from ...geometry.surface_points import check_surface_points, refine
 
 __all__ = ["vertex_sources", "SurfaceSources", "surface_sources", "check_surface_batch", "refined_result"]
 

@@ -6,7 +6,7 @@ free unknowns (K restricted to them is positive definite). Warm starts come for 
 ``x`` holds the initial guess on entry.
 
 The preconditioner is an operator z = M r with its own launches (the PCG masks z):
-:class:`~warp_regdist.solvers.multigrid.MultigridPreconditioner` (default), one smoothed-aggregation
+:class:`~warp_regdist.linalg.multigrid.MultigridPreconditioner` (default), one smoothed-aggregation
 V-cycle, which reads about 2.7 nnz(K) matrix entries on the finest level, so an iteration
 costs 2-3 Jacobi iterations, but 18, 21 and 33 iterations reach 1e-6 on 5k, 100k and 1M
 vertices; :class:`JacobiPreconditioner`, z = D^-1 r, needs 250, 800 and 3000 there
@@ -90,13 +90,13 @@ class BatchedPCG:
         Number of column blocks nb.
     device : warp device
     preconditioner : "multigrid", "jacobi", Hierarchy or operator
-        "multigrid" builds :func:`~warp_regdist.solvers.multigrid.smoothed_aggregation` of the
+        "multigrid" builds :func:`~warp_regdist.linalg.multigrid.smoothed_aggregation` of the
         matrix; a prebuilt Hierarchy shares one setup among several solvers. An operator
         is any object with ``n``, ``record(r, z, blocks)`` (recorded launches computing
         z = M r on blocks 0..blocks-1 of this solver's (n, nb) arrays ``r``, ``z``; M
         symmetric positive definite on the free rows) and ``set_matrix(matrix)``, e.g.
         :class:`JacobiPreconditioner` or
-        :class:`~warp_regdist.solvers.multigrid.MultigridPreconditioner`, built for this solver alone.
+        :class:`~warp_regdist.linalg.multigrid.MultigridPreconditioner`, built for this solver alone.
     check_every : int
         Without capture, the host reads the device's ``running`` flag every
         ``check_every`` iterations (iterations after convergence are no-ops, but each

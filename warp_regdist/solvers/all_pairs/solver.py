@@ -33,7 +33,7 @@ tolerances from the error accepted, :meth:`~warp_regdist.AllPairsOptions.for_acc
 rho_k = sqrt(A) min(rho_max, rho0 2^(k / rho_doubling)), rho2_k = rho2_factor rho_k^2 / (sqrt(A) A)
 (the consensus penalty grows faster than rho), over-relaxation in all three steps; stop when every
 residual is below its relative tolerance, the change still to come at the slower of the last two
-windows' rate and 1 / k (:class:`~warp_regdist.solvers.stopping.ExtrapolatedChangeTest`, with c_k = max
+windows' rate and 1 / k (:class:`~warp_regdist.solvers.common.stopping.ExtrapolatedChangeTest`, with c_k = max
 |U_k - U_(k - window)| / max U_k) is at most eps_change, and U's steepness beyond the constraint is at
 most eps_excess. K2 changes with the
 penalties: ``BatchedPCG.set_matrix`` replaces its values (same pattern as W_D), the multigrid
@@ -51,24 +51,24 @@ import warnings
 
 import numpy as np
 
-from ..arguments import check_weight, parse_device, parse_workers
-from ..atomic_write import check_room
-from ..errors import ConvergenceWarning
-from ..file_lock import FileLock
-from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators, choose_triangulation, largest_basis_angles
-from ..kernels.lanes import SCALARS
-from ..options import AllPairsOptions
-from .admm import PenaltySchedule
-from .all_pairs_checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
+from ...arguments import check_weight, parse_device, parse_workers
+from ...atomic_write import check_room
+from ...errors import ConvergenceWarning
+from ...file_lock import FileLock
+from ...geometry.mesh import Mesh
+from ...geometry.operators import build_operators, choose_triangulation, largest_basis_angles
+from ...kernels.lanes import SCALARS
+from ...options import AllPairsOptions
+from ..common.admm import PenaltySchedule
+from .checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
-from .all_pairs_eigenbasis import EigenbasisADMM, EigenbasisUStep
-from .all_pairs_run import PairsRun, final_result
-from .all_pairs_state import SymmetricADMM, middle_matrix
+from .eigenbasis import EigenbasisADMM, EigenbasisUStep
+from .run import PairsRun, final_result
+from .state import SymmetricADMM, middle_matrix
 from .memory import check_memory, memory_estimate
-from .multigrid import smoothed_aggregation
-from .source_triangles import SourceTriangles, check_source_triangles
-from .stopping import gradient_excess, steep_columns, steepest_element
+from ...linalg.multigrid import smoothed_aggregation
+from ..common.source_triangles import SourceTriangles, check_source_triangles
+from ..common.stopping import gradient_excess, steep_columns, steepest_element
 
 __all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTICES"]
 
@@ -120,9 +120,9 @@ class AllPairsSolver:
     memory_bytes : int
         Estimated footprint of a solve's arrays (device and host); each :meth:`solve` checks it
         against the memory then available and frees its arrays when it returns.
-    hierarchy : warp_regdist.solvers.multigrid.Hierarchy
+    hierarchy : warp_regdist.linalg.multigrid.Hierarchy
         The consensus engine's X-step multigrid preconditioner, shared by every solve.
-    u_step : warp_regdist.solvers.all_pairs_eigenbasis.EigenbasisUStep
+    u_step : warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisUStep
         The eigenbasis engine's U-step (eigenvectors of the stiffness), shared by every solve.
 
     Examples
@@ -193,7 +193,7 @@ class AllPairsSolver:
             None: this solver's options as they are.
         callback : callable or None
             Called after every iteration as ``callback(progress)`` with a
-            :class:`~warp_regdist.solvers.progress.Progress`: the iteration, the seconds, every stop
+            :class:`~warp_regdist.solvers.common.progress.Progress`: the iteration, the seconds, every stop
             test against its threshold (``checked`` at the iterations that measure them all, once per
             ``change_window``) and the memory footprint.
         checkpoint : str or os.PathLike or None

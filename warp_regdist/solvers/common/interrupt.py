@@ -5,7 +5,7 @@ Inside ``with catch_interrupt():`` (the solvers' iteration loops), the first SIG
 :func:`requested` returns, the loops stop at the end of their current iteration and return
 (or checkpoint) the iterate, flagged not converged; :func:`stopped_by` says which signal it
 was. A second signal raises KeyboardInterrupt. In a worker process
-(:mod:`warp_regdist.solvers.processes`) the flag is a byte of memory shared with the parent, which
+(:mod:`warp_regdist.solvers.common.processes`) the flag is a byte of memory shared with the parent, which
 raises it when the parent is interrupted.
 
 Off the main thread (where Python cannot install signal handlers) the guard does nothing.

@@ -1,7 +1,7 @@
 """The ADMM engine shared by DistanceSolver and AllPairsSolver (docs/method.md section 8): the loop
 :func:`run_iterations` over an :class:`AdmmProblem`, and the penalty schedule :class:`PenaltySchedule`.
 
-The stopping rule is :mod:`warp_regdist.solvers.stopping`; both solvers build their schedule from
+The stopping rule is :mod:`warp_regdist.solvers.common.stopping`; both solvers build their schedule from
 their options (``rho0``, ``rho_max``, ``rho_doubling``) unless the options carry a ``schedule``,
 any object with ``rho(k)`` and ``offset_for(penalty)``.
 """
@@ -37,7 +37,7 @@ def run_iterations(problem, start, max_iterations, check_every=1, poll=None):
     """The ADMM loop: from iteration ``start``, test, then advance ``check_every`` iterations at a time.
 
     Stops at the first passing test, at ``max_iterations`` (the last advance is shortened to end
-    there), or at a Ctrl-C caught by :func:`warp_regdist.solvers.interrupt.catch_interrupt` (checked
+    there), or at a Ctrl-C caught by :func:`warp_regdist.solvers.common.interrupt.catch_interrupt` (checked
     before each test: an interrupted run returns after the advance under way, untested). ``poll``,
     when given, is called before each test and may raise to end the run (the solvers check their
     worker processes there).

@@ -12,7 +12,7 @@ consensus variable and the U-step is solved exactly:
 (8 n^3 flops of symmetric and triangular BLAS an iteration, on the host), and the diagonal's
 multipliers mu solve one (n + 1) system set up once (:class:`EigenbasisUStep`). The Z-step is the
 consensus engine's element kernel with X = U (kernels/all_pairs.py), so the state, its checkpoints
-and the stopping rule are those of :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM`
+and the stopping rule are those of :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM`
 with X = U and H = 0.
 """
 
@@ -22,11 +22,11 @@ import numpy as np
 import scipy.linalg as sl
 import warp as wp
 
-from ..kernels.all_pairs import U2, X2, all_pairs_kernels
-from ..kernels.element_core import G2, R2, Z2
-from ..kernels.lanes import SCALARS, lane_type, row_dim, thread_span
-from .all_pairs_state import PairsState, _Setup
-from .device_mesh import DeviceMesh
+from ...kernels.all_pairs import U2, X2, all_pairs_kernels
+from ...kernels.element_core import G2, R2, Z2
+from ...kernels.lanes import SCALARS, lane_type, row_dim, thread_span
+from .state import PairsState, _Setup
+from ..common.device_mesh import DeviceMesh
 
 __all__ = ["EigenbasisUStep", "EigenbasisADMM"]
 
@@ -128,8 +128,8 @@ class EigenbasisUStep:
 
 class EigenbasisADMM(PairsState):
     """State and one iteration of the eigenbasis engine, with the interface of
-    :class:`~warp_regdist.solvers.all_pairs_state.SymmetricADMM` that
-    :class:`~warp_regdist.solvers.all_pairs_run.PairsRun` drives: the arrays X (the same array as U),
+    :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM` that
+    :class:`~warp_regdist.solvers.all_pairs.run.PairsRun` drives: the arrays X (the same array as U),
     U, H (zero), DZ, DZ_acc, DY_acc and v, one process (BLAS threads run the U-step)."""
 
     engine = "eigenbasis"

@@ -24,25 +24,25 @@ import warnings
 import numpy as np
 import warp as wp
 
-from ..arguments import check_weight, parse_device, parse_workers
-from ..errors import ConvergenceWarning, MeshWarning
-from ..geometry.mesh import Mesh
-from ..geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
-from ..geometry.regularizers import build_regularizer
-from ..kernels.lanes import SCALARS, lane_type, lane_width
-from ..kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
-from ..options import SolverOptions
-from . import interrupt
-from .admm import INTERRUPTED, PenaltySchedule, run_iterations
-from .device_mesh import DeviceMesh
-from .multigrid import Hierarchy, smoothed_aggregation
-from .pcg import BatchedPCG
-from .processes import WorkerPool, check_workers, processes_available, watch
-from .results import DistanceResult
-from .single_source_batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
+from ...arguments import check_weight, parse_device, parse_workers
+from ...errors import ConvergenceWarning, MeshWarning
+from ...geometry.mesh import Mesh
+from ...geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
+from ...geometry.regularizers import build_regularizer
+from ...kernels.lanes import SCALARS, lane_type, lane_width
+from ...kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
+from ...options import SolverOptions
+from ..common import interrupt
+from ..common.admm import INTERRUPTED, PenaltySchedule, run_iterations
+from ..common.device_mesh import DeviceMesh
+from ...linalg.multigrid import Hierarchy, smoothed_aggregation
+from ...linalg.pcg import BatchedPCG
+from ..common.processes import WorkerPool, check_workers, processes_available, watch
+from ..common.results import DistanceResult
+from .batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
-from .source_triangles import SourceTriangles, check_source_triangles
-from .stopping import steep_columns
+from ..common.source_triangles import SourceTriangles, check_source_triangles
+from ..common.stopping import steep_columns
 
 __all__ = ["DistanceSolver"]
 
@@ -81,7 +81,7 @@ class DistanceSolver:
         least 10^5 vertices x source sets (a worker takes a few seconds to start). Ignored on
         CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it:
         the workers receive this solver's multigrid hierarchy instead of building their own.
-    hierarchy : warp_regdist.solvers.multigrid.Hierarchy or None
+    hierarchy : warp_regdist.linalg.multigrid.Hierarchy or None
         A multigrid hierarchy of this mesh's stiffness matrix W_D to reuse (e.g. a solver's
         ``hierarchy`` of the same mesh at another alpha_hat); None: built here.
     options : SolverOptions or None
@@ -200,7 +200,7 @@ class DistanceSolver:
         problem's minimizer; only the iterations needed change.
 
         ``callback``: called at every test of the iterate (every iteration on the CPU, every 10 on
-        CUDA) as ``callback(progress)`` with a :class:`~warp_regdist.solvers.progress.Progress`;
+        CUDA) as ``callback(progress)`` with a :class:`~warp_regdist.solvers.common.progress.Progress`;
         ``verbose`` prints it on stderr every 2 s.
 
         ``options``: fields of :class:`~warp_regdist.SolverOptions` for this call (``max_iterations=``,

@@ -14,10 +14,10 @@ import zlib
 
 import numpy as np
 
-from ..atomic_write import write_atomic
-from ..errors import CheckpointWarning, WriteError
-from ..kernels.lanes import SCALARS, lane_width
-from .all_pairs_state import STATE_ROWS
+from ...atomic_write import write_atomic
+from ...errors import CheckpointWarning, WriteError
+from ...kernels.lanes import SCALARS, lane_width
+from .state import STATE_ROWS
 
 __all__ = ["Checkpoint", "checkpoint_bytes", "checkpoint_name", "checkpoint_room", "check_no_progress",
            "saved_iteration", "problem_fingerprint", "read_checkpoint"]

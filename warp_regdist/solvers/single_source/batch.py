@@ -1,7 +1,7 @@
 """One batched single-source ADMM on the device (Algorithm 1; docs/method.md sections 4 and 8):
 its arrays (:class:`Workspace`), the stopping rule's constants the device test reads
 (:func:`device_rule`), the iteration as recorded launches replayed as one Warp graph
-(:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.solvers.admm.run_iterations`
+(:class:`ColumnBatch`), and the loop's problem for :func:`~warp_regdist.solvers.common.admm.run_iterations`
 (:class:`BatchIterations`)."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import time
 import numpy as np
 import warp as wp
 
-from ..kernels.single_source import (CHANGE, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE,
+from ...kernels.single_source import (CHANGE, DONE, DUAL_SCALE, EPS_DUAL, EPS_DUAL_ABS, EPS_PRI, ESTIMATE,
                                      ESTIMATE_OUT, IT_OUT, LANE_ROWS, LOAD_NORM, R_LAST, R_OUT, RHO_OUT, S_LAST, S_OUT,
                                      rule_struct, single_source_kernels)
-from ..kernels.lanes import lane_kernels, row_dim, thread_span
-from .progress import Progress, StopTest
-from .stopping import ESTIMATE_RATE_CAP, tolerance
+from ...kernels.lanes import lane_kernels, row_dim, thread_span
+from ..common.progress import Progress, StopTest
+from ..common.stopping import ESTIMATE_RATE_CAP, tolerance
 
 __all__ = ["Workspace", "device_rule", "ColumnBatch", "BatchIterations", "lanes", "collect", "RHO_TABLE"]
 
@@ -116,7 +116,7 @@ def _max_ratio(a, b):
 
 
 class BatchIterations:
-    """One batched single-source ADMM as the problem of :func:`~warp_regdist.solvers.admm.run_iterations`.
+    """One batched single-source ADMM as the problem of :func:`~warp_regdist.solvers.common.admm.run_iterations`.
 
     ``status`` reads the device's per-lane flags, collects the columns whose test first held
     (frozen on the device at that iterate) and reports progress to ``callback``; ``advance`` compacts

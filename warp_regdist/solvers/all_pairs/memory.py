@@ -7,7 +7,7 @@ import os
 import numpy as np
 import warp as wp
 
-from ..kernels.lanes import SCALARS, lane_width
+from ...kernels.lanes import SCALARS, lane_width
 
 __all__ = ["memory_estimate", "check_memory", "available_memory"]
 

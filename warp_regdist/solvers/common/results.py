@@ -61,7 +61,7 @@ class DistanceResult(OptimizeResult):
 
     def _attach(self, solver, source_sets, options=None, surface=None):
         """Keep the solver, the vertex source sets, the options of the solve and, for points, the
-        :class:`~warp_regdist.solvers.sources.SurfaceSources` whose refined mesh it ran on, for :meth:`vjp`
+        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on, for :meth:`vjp`
         and :meth:`polish` (an attribute, not a key)."""
         object.__setattr__(self, "_problem", (solver, source_sets, options, surface))
 
@@ -100,7 +100,7 @@ class DistanceResult(OptimizeResult):
         ((p, 3) after ``solve``, a list of them after ``solve_many``), the points moving with their
         face, and ``refined_vertices`` (n', 3) on the refined mesh.
         """
-        from .gradients import vector_jacobian_product
+        from ..single_source.gradients import vector_jacobian_product
 
         solver, source_sets, distance, one, options, surface = self._smoothable("differentiate")
         n = np.asarray(self.distance).shape[0]
@@ -120,7 +120,7 @@ class DistanceResult(OptimizeResult):
             grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
         out = vector_jacobian_product(solver, distance, source_sets, grad, options)
         if surface is not None:
-            from ..geometry.surface_points import refinement_vjp
+            from ...geometry.surface_points import refinement_vjp
 
             out["refined_vertices"] = out.vertices
             out["vertices"], gb = refinement_vjp(surface.refinement, solver.mesh.vertices[:n], surface.bary,
@@ -143,7 +143,7 @@ class DistanceResult(OptimizeResult):
         ``seconds`` adds the polish's time.
         Vertex and point sources and the Dirichlet regularizer only, like :meth:`vjp`.
         """
-        from .gradients import smoothed_solution
+        from ..single_source.gradients import smoothed_solution
 
         t0 = time.perf_counter()
         solver, source_sets, distance, one, options, surface = self._smoothable("polish")

@@ -9,7 +9,7 @@ crashed ``all_pairs`` under load). So the solvers use more cores through process
   script is never re-imported, whatever its ``__main__`` guard), each of which builds one
   object ``factory(*args, index)`` and then runs the method calls the parent sends it over a
   pipe. The workers live in their own session: a Ctrl-C in the terminal reaches the parent
-  only, which decides what it means (see :mod:`warp_regdist.solvers.interrupt`) and raises the
+  only, which decides what it means (see :mod:`warp_regdist.solvers.common.interrupt`) and raises the
   workers' shared stop flag. A worker dies with its parent, however the parent died (SIGKILL,
   SIGTERM, the out-of-memory killer): the kernel kills it when the parent thread that started
   it ends (``PR_SET_PDEATHSIG``), and a watchdog thread, which compares its parent's pid with
@@ -44,7 +44,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from . import interrupt
-from ..errors import WorkerError
+from ...errors import WorkerError
 
 __all__ = ["WorkerPool", "SharedArrays", "processes_available", "watch", "check_workers"]
 
@@ -114,7 +114,7 @@ _WORKER = """
 import sys
 import warp
 warp.config.log_level = warp.LOG_WARNING
-from warp_regdist.solvers.processes import _serve
+from warp_regdist.solvers.common.processes import _serve
 _serve(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
 """
 
@@ -310,7 +310,7 @@ def _serve(read_fd, write_fd, parent):
     except EOFError:
         return
     try:
-        from ..arguments import parse_device
+        from ...arguments import parse_device
 
         parse_device("cpu")  # starts Warp without its CUDA-driver warning
         factory, args, index, stop_flag = message
