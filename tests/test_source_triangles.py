@@ -142,3 +142,24 @@ def test_the_wedges_of_a_column_are_its_triangles_with_one_source_corner():
     faces, _ = SourceTriangles(ops, "edges").corners([a, b])
     assert 0 not in faces
     assert SourceTriangles(ops, "gradient").corners([0])[0].size == 0
+
+
+def test_the_command_line_takes_the_rule(tmp_path, capsys):
+    """--source-triangles picks the problem on both subcommands, as the API's keyword does."""
+    import trimesh
+    from warp_regdist.cli import main
+
+    V, F = meshes.icosphere(1, 1.0)
+    path = tmp_path / "ball.off"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    mesh = wrd.load_mesh(path)
+    for rule in ("edges", "gradient"):
+        assert main(["distance", str(path), "--sources", "0", "--source-triangles", rule, "--quiet",
+                     "--output", str(tmp_path / f"{rule}.npy")]) == 0
+        expected = wrd.DistanceSolver(mesh, 0.05, source_triangles=rule).solve([0]).distance
+        np.testing.assert_allclose(np.load(tmp_path / f"{rule}.npy"), expected, atol=1e-12)
+        assert main(["allpairs", str(path), "--source-triangles", rule, "--quiet",
+                     "--output", str(tmp_path / f"U_{rule}.npy")]) == 0
+        U = wrd.all_pairs(mesh, 0.03, source_triangles=rule).distance
+        np.testing.assert_allclose(np.load(tmp_path / f"U_{rule}.npy"), U, atol=1e-12)
+    assert not np.allclose(np.load(tmp_path / "edges.npy"), np.load(tmp_path / "gradient.npy"), atol=1e-3)

@@ -9,7 +9,8 @@ import sys
 import numpy as np
 
 from .common import (announce_compile, check_output, estimated_error, exit_status, load, repair_option,
-                     solver_options, stop_word, subcommand, warn, warnings_to_stderr, write_or_rescue)
+                     solver_options, source_triangles_option, stop_word, subcommand, warn, warnings_to_stderr,
+                     write_or_rescue)
 
 
 LOCKED_OUTPUTS = ("output",)
@@ -57,6 +58,7 @@ def add_parser(sub) -> None:
                           help="the splitting: eigenbasis (exact dense U-step, small meshes), consensus (PCG, any size); "
                           "auto: eigenbasis on the CPU up to 2,000 vertices (default: auto)")
     repair_option(allpairs)
+    source_triangles_option(allpairs)
     solver_options(allpairs)
 
 
@@ -115,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     announce_compile(args.dtype, args.quiet)
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         solver = AllPairsSolver(mesh, args.alpha_hat, device=args.device, dtype=args.dtype, workers=args.workers,
-                                options=AllPairsOptions(engine=args.engine))
+                                options=AllPairsOptions(engine=args.engine), source_triangles=args.source_triangles)
         banner = (f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
                   f"{solver.memory_bytes / 1e9:.2f} GB; a progress line every {solver.options.change_window} "
                   "iterations")

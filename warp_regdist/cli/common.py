@@ -84,6 +84,17 @@ def subcommand(sub, name: str, help: str, description: str) -> argparse.Argument
                           formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
+def source_triangles_option(p: argparse.ArgumentParser) -> None:
+    """--source-triangles."""
+    p.add_argument(
+        "--source-triangles",
+        choices=("edges", "gradient"),
+        default=None,
+        help="the bound on a triangle with one source corner: 'edges' u <= the side lengths from the source "
+        "(default on triangle meshes), 'gradient' |grad u| <= 1 as on every other triangle (the paper's problem)",
+    )
+
+
 def solver_options(p: argparse.ArgumentParser) -> None:
     """--device, --dtype, --quiet, --verbose."""
     p.add_argument(

@@ -8,8 +8,8 @@ import os
 from ..atomic_write import check_room
 from .common import (DEMO_ALPHA_HAT, OUTPUT_EXTENSIONS, PICTURE_BYTES, check_output, exit_status, file_values, load,
                      max_distance_option, max_iterations_option, parse_sources, parse_surface_points, repair_option,
-                     single_source_options, solve, solver_options, subcommand, summary, values_bytes, warn,
-                     write_or_rescue)
+                     single_source_options, solve, solver_options, source_triangles_option, subcommand, summary,
+                     values_bytes, warn, write_or_rescue)
 
 
 LOCKED_OUTPUTS = ("output", "png")
@@ -97,13 +97,7 @@ def add_parser(sub) -> None:
         help="finish with Newton's method on the barrier-smoothed problem: within about 0.03%% of the exact "
         "minimizer, about 5 times the solve's time (vertex sources, Dirichlet regularizer; docs/method.md section 10)",
     )
-    distance.add_argument(
-        "--source-triangles",
-        choices=("edges", "gradient"),
-        default=None,
-        help="the bound on a triangle with one source corner: 'edges' u <= the side lengths from the source "
-        "(default on triangle meshes), 'gradient' |grad u| <= 1 as on every other triangle (the paper's problem)",
-    )
+    source_triangles_option(distance)
     max_distance_option(distance)
     max_iterations_option(distance)
     repair_option(distance)
