@@ -54,13 +54,22 @@ def all_pairs_kernels(scalar, W):
     def project_own(elements: wp.array2d(dtype=wp.int32), directions: wp.array3d(dtype=V3), e: int, b: int,
                     col0: int, vx: V, vy: V, vz: V):
         """Proj_C(v) per lane: the unit ball, or the wedge at corner c on the lane of the column of corner c
-        (element_core; ``directions`` (1, 3, 2) zeros: no wedges, col0 < 0)."""
+        (element_core; ``directions`` (1, 3, 2) zeros: no wedges, col0 < 0). Most element blocks hold no
+        corner's column: they return after three integer tests."""
         zx, zy, zz = project(vx, vy, vz)
-        if col0 >= 0:
-            for c in range(3):
-                l = own_lane(elements, e, c, b, col0)
-                if l >= 0:
-                    zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l, directions[e, c, 0], directions[e, c, 1])
+        if col0 < 0:
+            return zx, zy, zz
+        l0 = own_lane(elements, e, 0, b, col0)
+        l1 = own_lane(elements, e, 1, b, col0)
+        l2 = own_lane(elements, e, 2, b, col0)
+        if l0 < 0 and l1 < 0 and l2 < 0:
+            return zx, zy, zz
+        if l0 >= 0:
+            zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l0, directions[e, 0, 0], directions[e, 0, 1])
+        if l1 >= 0:
+            zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l1, directions[e, 1, 0], directions[e, 1, 1])
+        if l2 >= 0:
+            zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l2, directions[e, 2, 0], directions[e, 2, 1])
         return zx, zy, zz
 
     @wp.kernel(enable_backward=False, module=module)

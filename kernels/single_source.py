@@ -96,6 +96,24 @@ def single_source_kernels(scalar, W, k):
             c = -1
         return c
 
+    @wp.func(module=module)
+    def project_sources(elements: wp.array2d(dtype=wp.int32), mask: wp.array2d(dtype=V),
+                        touched: wp.array(dtype=wp.int32), directions: wp.array3d(dtype=V3), e: int, b: int,
+                        vx: V, vy: V, vz: V):
+        """Proj_C(v) per lane: the unit ball, or on a ``touched`` triangle the wedge of the lanes where exactly
+        one corner is a source (mask 0). An untouched element returns after one test."""
+        zx, zy, zz = project(vx, vy, vz)
+        if touched[e] == 0:
+            return zx, zy, zz
+        s0 = mask[elements[e, 0], b]
+        s1 = mask[elements[e, 1], b]
+        s2 = mask[elements[e, 2], b]
+        for l in range(W):
+            c = source_corner(s0[l], s1[l], s2[l])
+            if c >= 0:
+                zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l, directions[e, c, 0], directions[e, c, 1])
+        return zx, zy, zz
+
     @wp.kernel(enable_backward=False, module=module)
     def element_step(elements: wp.array2d(dtype=wp.int32), basis: wp.array2d(dtype=V3), vol: wp.array(dtype=scalar),
                      u: wp.array2d(dtype=V), rho: wp.array(dtype=V), relaxation: scalar,
@@ -129,16 +147,7 @@ def single_source_kernels(scalar, W, k):
                 vx = wp.cw_div(y[e, 0, b], rb) + hx
                 vy = wp.cw_div(y[e, 1, b], rb) + hy
                 vz = wp.cw_div(y[e, 2, b], rb) + hz
-                zx, zy, zz = project(vx, vy, vz)
-                if touched[e] != 0:
-                    s0 = mask[elements[e, 0], b]
-                    s1 = mask[elements[e, 1], b]
-                    s2 = mask[elements[e, 2], b]
-                    for l in range(W):
-                        c = source_corner(s0[l], s1[l], s2[l])
-                        if c >= 0:
-                            zx, zy, zz = project_lane(zx, zy, zz, vx, vy, vz, l, directions[e, c, 0],
-                                                      directions[e, c, 1])
+                zx, zy, zz = project_sources(elements, mask, touched, directions, e, b, vx, vy, vz)
                 y[e, 0, b] = y[e, 0, b] + wp.cw_mul(rb, hx - zx)
                 y[e, 1, b] = y[e, 1, b] + wp.cw_mul(rb, hy - zy)
                 y[e, 2, b] = y[e, 2, b] + wp.cw_mul(rb, hz - zz)
