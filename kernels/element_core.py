@@ -26,7 +26,8 @@ R2, G2, Z2, S2, DY2 = 0, 1, 2, 3, 4
 @functools.cache
 def element_funcs(scalar, W):
     """The per-element core both ADMM kernel families share (single source, all pairs): the element
-    gradient, the projection onto the unit ball and the element's terms of the residual sums."""
+    gradient, the projections onto the unit ball and onto a source triangle's wedge, and the element's terms of
+    the residual sums."""
     V = lane_type(scalar, W)
     V3 = wp.types.vector(3, scalar)
     module = wp.get_module(f"warp_regdist_element_core_{scalar.__name__}_{W}")
