@@ -43,7 +43,7 @@ With ``--engines``: both engines (``AllPairsOptions.engine``) at accuracy 0.01 a
 the exact cases of tests/data (the mesh's operators) and on ``LARGER`` (intrinsic operators, against
 the long runs in ``--cache``); then each engine's setup and time per iteration (``ENGINE_COST_ITERATIONS``
 iterations, float32 and float64) on cat_rr decimated to 1,000 vertices and on cat_rr itself, the sizes
-that ``EIGENBASIS_MAX_VERTICES`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv. With
+that ``AllPairsOptions.eigenbasis_max_vertices`` is chosen among. Writes benchmarks/results/all_pairs_engines.csv. With
 ``--decimate N`` only the runs on cat_rr (or ``--mesh NAME``, a shared mesh or a mesh file) decimated to about
 N vertices (at ``--alpha-hat``), against its own 5,000-iteration reference, into
 benchmarks/results/all_pairs_engines_N.csv (all_pairs_engines_NAME_N.csv for another mesh,

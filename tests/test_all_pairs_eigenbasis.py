@@ -13,7 +13,6 @@ import pytest
 
 import warp_regdist as wrd
 from warp_regdist.cli import allpairs as cli_allpairs
-from warp_regdist.solvers.all_pairs import solver as all_pairs_solver
 from warp_regdist.solvers.all_pairs.eigenbasis import EigenbasisUStep, diagonal_response
 
 DATA = os.path.join(os.path.dirname(__file__), "data", "all_pairs_bumpy42.npz")
@@ -85,13 +84,18 @@ def test_auto_takes_eigenbasis_on_small_meshes_on_the_cpu(bumpy42):
     assert solver.engine(solver.options.replace(engine="consensus")) == "consensus"
 
 
-def test_auto_takes_consensus_above_the_eigenbasis_bound(bumpy42, monkeypatch):
+def test_auto_takes_consensus_above_the_eigenbasis_bound(bumpy42):
     mesh, _ = bumpy42
-    assert all_pairs_solver.EIGENBASIS_MAX_VERTICES == 2000
+    assert wrd.AllPairsOptions().eigenbasis_max_vertices == 2000
     assert "auto: eigenbasis on the CPU up to 2,000 vertices" in open(cli_allpairs.__file__).read()  # --help says it
-    monkeypatch.setattr(all_pairs_solver, "EIGENBASIS_MAX_VERTICES", mesh.n_vertices - 1)
-    solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu")
+    options = wrd.AllPairsOptions(eigenbasis_max_vertices=mesh.n_vertices - 1)
+    solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", options=options)
     assert solver.engine(solver.options) == "consensus"
+    # accuracy sets the tolerances and keeps every other field of the solver's options, this one too
+    assert solver.engine(solver.options.at_accuracy(0.01)) == "consensus"
+    assert solver.options.at_accuracy(0.01).eps_change == wrd.AllPairsOptions.for_accuracy(0.01).eps_change
+    with pytest.raises(ValueError, match=r"expected eigenbasis_max_vertices as an integer"):
+        wrd.AllPairsOptions(eigenbasis_max_vertices=1.5)
 
 
 def test_engine_must_be_named(bumpy42):

@@ -214,8 +214,12 @@ class AllPairsOptions(_Options):
         The splitting (docs/method.md section 5): "eigenbasis", U symmetric in the primal with an
         exact dense U-step (no PCG, no consensus; O(n^3) work an iteration and (n, n) eigenvectors);
         "consensus", Algorithm 2's splitting with PCG X-steps (O(n^2) work an iteration, worker
-        processes); "auto": eigenbasis on the CPU up to ``EIGENBASIS_MAX_VERTICES`` vertices, consensus
-        otherwise (docs/guides/all-pairs.md gives the measurements behind it).
+        processes); "auto": eigenbasis on the CPU up to ``eigenbasis_max_vertices`` vertices, consensus
+        otherwise.
+    eigenbasis_max_vertices : int
+        The largest mesh on which ``engine="auto"`` takes the eigenbasis engine on the CPU: its dense U-step
+        costs O(n^3) an iteration against the consensus engine's O(n^2), but it converges where the
+        consensus engine creeps (docs/guides/all-pairs.md gives the measurements behind the default).
     """
 
     eps_abs: float = 0.0
@@ -237,6 +241,7 @@ class AllPairsOptions(_Options):
     cg_max_iterations: int = 500
     max_gradient: float = 1.5
     engine: str = "auto"
+    eigenbasis_max_vertices: int = 2000
 
     _INFINITE = ("eps_change", "eps_excess", "rho_doubling")
     _CHOICES = {"engine": ("auto", "eigenbasis", "consensus")}
@@ -249,7 +254,7 @@ class AllPairsOptions(_Options):
         return self.replace(engine=engine, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
     _POSITIVE = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")
-    _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations")
+    _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations", "eigenbasis_max_vertices")
 
     @classmethod
     def for_accuracy(cls, accuracy, **overrides):
@@ -264,3 +269,11 @@ class AllPairsOptions(_Options):
         return cls(eps_rel=base.eps_rel * s, eps_rel_consensus=base.eps_rel_consensus * s,
                    eps_rel_dual=base.eps_rel_dual * s, eps_change=_CHANGE_SHARE * accuracy,
                    eps_excess=_EXCESS_SHARE * accuracy, cg_fraction=base.cg_fraction * min(1.0, s)).replace(**overrides)
+
+    def at_accuracy(self, accuracy):
+        """These options with the fields that :meth:`for_accuracy` sets (``FROM_ACCURACY``) taken from it; every
+        other field stays."""
+        target = type(self).for_accuracy(accuracy)
+        return self.replace(**{name: getattr(target, name) for name in self.FROM_ACCURACY})
+
+    FROM_ACCURACY = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "cg_fraction")

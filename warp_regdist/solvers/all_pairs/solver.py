@@ -70,13 +70,7 @@ from ...linalg.multigrid import smoothed_aggregation
 from ..common.source_triangles import SourceTriangles, check_source_triangles
 from ..common.stopping import gradient_excess, steep_columns, steepest_element
 
-__all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE", "EIGENBASIS_MAX_VERTICES"]
-
-EIGENBASIS_MAX_VERTICES = 2000
-"""The largest mesh on which ``engine="auto"`` takes the eigenbasis engine (on the CPU). Its dense U-step
-costs O(n^3) an iteration against the consensus engine's O(n^2), but it converges where the consensus
-engine creeps: at 1,201, 1,800 and 1,949 vertices it converged at accuracy 0.01 and the consensus engine
-did not (docs/design/all-pairs.md). Larger meshes were not measured with it."""
+__all__ = ["AllPairsSolver", "all_pairs", "OBTUSE_ANGLE"]
 
 OBTUSE_ANGLE = 120.0
 """An unconverged all-pairs result whose steepest triangle has an angle of this many degrees or more
@@ -165,10 +159,11 @@ class AllPairsSolver:
 
     def engine(self, options):
         """The engine that ``options`` choose on this mesh and device: their ``engine``, or for "auto"
-        "eigenbasis" on the CPU up to EIGENBASIS_MAX_VERTICES vertices and "consensus" otherwise."""
+        "eigenbasis" on the CPU up to ``options.eigenbasis_max_vertices`` vertices and "consensus" otherwise."""
         if options.engine != "auto":
             return options.engine
-        return "eigenbasis" if self.device.is_cpu and self.mesh.n_vertices <= EIGENBASIS_MAX_VERTICES else "consensus"
+        small = self.mesh.n_vertices <= options.eigenbasis_max_vertices
+        return "eigenbasis" if self.device.is_cpu and small else "consensus"
 
     @functools.cached_property
     def hierarchy(self):
@@ -247,8 +242,7 @@ class AllPairsSolver:
         """
         t0 = time.perf_counter()
         mesh, dtype = self.mesh, self.dtype
-        base = self.options if accuracy is None else AllPairsOptions.for_accuracy(accuracy, **{
-            name: getattr(self.options, name) for name in _NOT_FROM_ACCURACY})
+        base = self.options if accuracy is None else self.options.at_accuracy(accuracy)
         run_options = base.replace(**options)
         check_weight(checkpoint_seconds, "checkpoint_seconds", positive=True)
         if callback is not None and not callable(callback):
@@ -324,11 +318,6 @@ class AllPairsSolver:
                               "settle slowly at obtuse triangles, and a mesh without them (Delaunay edge flips, "
                               "remeshing) converges sooner (docs/guides/all-pairs.md)", ConvergenceWarning, stacklevel=3)
         return res
-
-
-_NOT_FROM_ACCURACY = ("eps_abs", "change_window", "max_iterations", "relaxation", "rho0", "rho_max", "rho_doubling",
-                      "rho2_factor", "schedule", "cg_rtol", "cg_max_iterations", "max_gradient", "engine")
-"""The options that ``accuracy`` leaves as the solver's."""
 
 
 def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None, accuracy=None,
