@@ -163,3 +163,15 @@ def test_the_command_line_takes_the_rule(tmp_path, capsys):
         U = wrd.all_pairs(mesh, 0.03, source_triangles=rule).distance
         np.testing.assert_allclose(np.load(tmp_path / f"U_{rule}.npy"), U, atol=1e-12)
     assert not np.allclose(np.load(tmp_path / "edges.npy"), np.load(tmp_path / "gradient.npy"), atol=1e-3)
+
+
+def test_a_source_in_no_face_has_no_wedge():
+    """A vertex that no face uses can be a source (its column is all unreachable but itself)."""
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [5, 5, 5]])
+    F = np.array([[0, 1, 2], [1, 3, 2]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.MeshWarning)
+        solver = wrd.DistanceSolver(wrd.Mesh(V, F), 0.05, workers=1)
+    u = solver.solve_many([[0], [4]]).distance
+    assert u[4, 1] == 0.0 and np.isinf(u[:4, 1]).all() and u[3, 0] > 0
+    assert solver.source_triangles.corners([4])[0].size == 0

@@ -66,7 +66,7 @@ class SourceTriangles:
 
     def __init__(self, ops, rule):
         self.rule = rule
-        self.elements, self.grad = ops.elements, ops.grad
+        self.elements, self.grad, self.n = ops.elements, ops.grad, ops.vertex_volumes.size
         self.active = rule == "edges" and ops.elements.shape[1] == 3
         self.directions = corner_directions(ops.basis) if self.active else None
 
@@ -75,10 +75,7 @@ class SourceTriangles:
         indices): the triangles whose constraint is the wedge at that corner (none when not active)."""
         if not self.active:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        n = int(max(self.elements.max(initial=-1), np.max(sources, initial=-1))) + 1
-        hit = np.zeros(n, dtype=bool)
-        hit[np.asarray(sources, dtype=np.int64)] = True
-        at = hit[self.elements]
+        at = self._hit([sources])[self.elements]
         faces = np.flatnonzero(at.sum(axis=1) == 1)
         return faces, np.argmax(at[faces], axis=1)
 
@@ -87,11 +84,15 @@ class SourceTriangles:
         not active): where an element step looks for wedges."""
         flag = np.zeros(m, dtype=np.int32)
         if self.active:
-            hit = np.zeros(int(self.elements.max(initial=-1)) + 1, dtype=bool)
-            for s in source_sets:
-                hit[np.asarray(s, dtype=np.int64)] = True
-            flag[hit[self.elements].any(axis=1)] = 1
+            flag[self._hit(source_sets)[self.elements].any(axis=1)] = 1
         return flag
+
+    def _hit(self, source_sets):
+        """(n,) bool: the vertices in some set of ``source_sets``."""
+        hit = np.zeros(self.n, dtype=bool)
+        for s in source_sets:
+            hit[np.asarray(s, dtype=np.int64)] = True
+        return hit
 
     def _pairs(self, columns, k):
         """(faces, corners, column) of every wedge of the k columns of ``columns``: a list of (column,
