@@ -48,7 +48,7 @@ def main():
     solver = wrd.AllPairsSolver(mesh, 0.03, device=device, dtype="float32")
 
     def progress(info):
-        if info.iteration % 250 == 0:
+        if info.tests and info.iteration % 250 == 0:
             print(f"  {info}", flush=True)
 
     with warnings.catch_warnings():

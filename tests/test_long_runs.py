@@ -203,7 +203,7 @@ def test_checkpoint_without_room_is_refused_before_allocating(sphere642, tmp_pat
 
     monkeypatch.setattr(ap, "SymmetricADMM", no_state)
     monkeypatch.setattr(atomic_write.shutil, "disk_usage", lambda path: types.SimpleNamespace(free=1000))
-    with pytest.raises(ValueError, match=r"expected (\d+) MB free for two copies of the checkpoint '.*run\.npz' "
+    with pytest.raises(ValueError, match=r"expected ([0-9.]+) MB free for two copies of the checkpoint '.*run\.npz' "
                                          r"\(\1 MB\), got 1 kB free on the file system of '.*'"):
         wrd.all_pairs(sphere642, 0.03, device="cpu", checkpoint=tmp_path / "run.npz")
     with pytest.raises(ValueError, match="expected checkpoint in an existing directory"):

@@ -193,7 +193,11 @@ class AllPairsOptions(_Options):
     eps_excess : float
         Steepness test, at the same iterations: max over elements e and columns j of
         (|grad U_j|_e - 1)_+ diam(e) <= eps_excess max U, |grad U_j|_e relative to its bound (inf: no such test).
-    change_window, max_iterations : int
+    change_window : int
+    max_iterations : int or None
+        ADMM iteration cap (then a ConvergenceWarning and ``converged`` False); None: twice the typical
+        iterations at the mesh's size and accuracy, at least 3,000
+        (:func:`~warp_regdist.solvers.all_pairs.forecast.default_cap`).
     relaxation : float
         Over-relaxation of all three steps.
     rho0, rho_max, rho_doubling : float or None
@@ -229,7 +233,7 @@ class AllPairsOptions(_Options):
     eps_change: float = _CHANGE_SHARE * DEFAULT_ACCURACY
     eps_excess: float = 5e-3
     change_window: int = 50
-    max_iterations: int = 3000
+    max_iterations: int = None
     relaxation: float = 1.7
     rho0: float = None
     rho_max: float = None
@@ -245,7 +249,7 @@ class AllPairsOptions(_Options):
 
     _INFINITE = ("eps_change", "eps_excess", "rho_doubling")
     _CHOICES = {"engine": ("auto", "eigenbasis", "consensus")}
-    _OPTIONAL = ("rho0", "rho_max", "rho_doubling")
+    _OPTIONAL = ("rho0", "rho_max", "rho_doubling", "max_iterations")
 
     def for_engine(self, engine):
         """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties
@@ -269,6 +273,12 @@ class AllPairsOptions(_Options):
         return cls(eps_rel=base.eps_rel * s, eps_rel_consensus=base.eps_rel_consensus * s,
                    eps_rel_dual=base.eps_rel_dual * s, eps_change=_CHANGE_SHARE * accuracy,
                    eps_excess=_EXCESS_SHARE * accuracy, cg_fraction=base.cg_fraction * min(1.0, s)).replace(**overrides)
+
+    @property
+    def accuracy(self):
+        """The accuracy that these options' change test stands for, eps_change / 0.7 (that of
+        :meth:`for_accuracy`; DEFAULT_ACCURACY without a change test)."""
+        return self.eps_change / _CHANGE_SHARE if math.isfinite(self.eps_change) else DEFAULT_ACCURACY
 
     def at_accuracy(self, accuracy):
         """These options with the fields that :meth:`for_accuracy` sets (``FROM_ACCURACY``) taken from it; every

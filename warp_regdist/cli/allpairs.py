@@ -50,8 +50,9 @@ def add_parser(sub) -> None:
                           "overwritten); without it such a --checkpoint is refused unless it is the --resume file")
     allpairs.add_argument("--initial", metavar="FILE",
                           help="warm start from a checkpoint of this mesh and dtype at another alpha_hat")
-    allpairs.add_argument("--max-iterations", type=int, default=3000, metavar="N",
-                          help="ADMM iteration cap (default: 3000)")
+    allpairs.add_argument("--max-iterations", type=int, default=None, metavar="N",
+                          help="ADMM iteration cap (default: twice the typical iterations at the mesh's size and "
+                          "accuracy, at least 3000; the first line says it)")
     allpairs.add_argument("--workers", type=int, default=None, metavar="N",
                           help="CPU processes sharing every step of the consensus engine (default: the cores available)")
     allpairs.add_argument("--engine", choices=("auto", "eigenbasis", "consensus"), default="auto",
@@ -62,23 +63,37 @@ def add_parser(sub) -> None:
     solver_options(allpairs)
 
 
-def _allpairs_progress(banner, cap=None):
-    """A callback for ``all_pairs`` printing ``banner`` at the first iteration (so that a refusal of the
-    run's arguments is the only line), then one stderr line per check window: every stop test against
-    its threshold, the time an iteration takes and the most the run can still take (to ``cap``)."""
-    started = []
+def _allpairs_progress(banner, forecast):
+    """A callback for ``all_pairs`` printing to stderr: ``banner`` before the engine's setup (when the run's
+    arguments have been checked, so that a refusal is the only line), a line after a few iterations, one line per
+    check window (every stop test against its threshold), both with the time an iteration takes, what the
+    typical iterations of ``forecast`` (a RunForecast) leave at that rate and the most the run can still
+    take to its cap; and once a line when the run is not settling."""
+    first, told, warned = [], [], []
 
     def show(progress):
-        if not started:
-            started.append((progress.iteration, progress.seconds))
+        if not progress.tests:
             print(banner, file=sys.stderr, flush=True)
-        if progress.checked:
-            first, t0 = started[0]
-            done = progress.iteration - first
-            rate = (progress.seconds - t0) / done if done > 0 else 0.0
-            ahead = (f"; {rate:.2g} s/iteration, at most {_duration(rate * (cap - progress.iteration))} to the cap "
-                     f"{cap}" if rate > 0 and cap else "")
-            print(f"  {progress}{ahead}", file=sys.stderr, flush=True)
+            return
+        if not first:
+            first.append((progress.iteration, progress.seconds))
+        start, t0 = first[0]
+        done = progress.iteration - start
+        rate = (progress.seconds - t0) / done if done > 0 else 0.0
+        if not (progress.checked or not told and done >= 5) or rate <= 0:
+            return
+        told.append(True)
+        cap, k = forecast.max_iterations, progress.iteration
+        typical = (f"about {_duration(rate * (forecast.iterations - k))} to the typical {forecast.iterations}, "
+                   if k < forecast.iterations else "")
+        ahead = f"{rate:.2g} s/iteration; {typical}at most {_duration(rate * (cap - k))} to the cap {cap}"
+        print(f"  {progress}; {ahead}" if progress.checked else f"  iteration {k}: {ahead}", file=sys.stderr,
+              flush=True)
+        if not progress.settling and not warned:
+            warned.append(True)
+            print("  not settling: the change still to come has reached no new low for many checks, so the run "
+                  "may end at its cap unconverged; a larger --accuracy stops sooner, and Ctrl-C keeps the current "
+                  "iterate", file=sys.stderr, flush=True)
 
     return show
 
@@ -94,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     from .. import AllPairsOptions, AllPairsSolver, ConvergenceWarning
     from ..atomic_write import check_room
     from ..solvers.all_pairs.checkpoint import check_no_progress, checkpoint_bytes, checkpoint_room
+    from ..solvers.all_pairs.forecast import with_cap
 
     check_output(args.output, (".npy",), "--output")
     if args.checkpoint is not None:
@@ -109,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"expected {flag} as an existing checkpoint file, got {path!r} (no such file)")
     mesh = load(args.mesh, args.repair)
     n = mesh.n_vertices if mesh.input_index is None else mesh.input_index.size
+    asked = AllPairsOptions() if args.accuracy is None else AllPairsOptions.for_accuracy(args.accuracy)
+    args.max_iterations = with_cap(mesh.n_vertices, asked.replace(max_iterations=args.max_iterations)).max_iterations
     planned = [(args.output, 8 * n * n + 128, "--output")]
     if args.checkpoint is not None:
         size = checkpoint_bytes(mesh.n_vertices, mesh.n_elements, args.dtype, args.max_iterations)
@@ -118,10 +136,10 @@ def run(args: argparse.Namespace) -> int:
     with warnings_to_stderr(reported_by_caller=(ConvergenceWarning,)):
         solver = AllPairsSolver(mesh, args.alpha_hat, device=args.device, dtype=args.dtype, workers=args.workers,
                                 options=AllPairsOptions(engine=args.engine), source_triangles=args.source_triangles)
-        banner = (f"{os.path.basename(args.mesh)}: {n} vertices, {solver.engine(solver.options)} engine, about "
-                  f"{solver.memory_bytes / 1e9:.2f} GB; a progress line every {solver.options.change_window} "
-                  "iterations")
-        result = solver.solve(callback=None if args.quiet else _allpairs_progress(banner, cap=args.max_iterations),
+        forecast = solver.forecast(accuracy=args.accuracy, max_iterations=args.max_iterations)
+        banner = (f"{os.path.basename(args.mesh)}: {forecast}; the {forecast.engine} engine's setup, then a progress "
+                  f"line every {solver.options.change_window} iterations")
+        result = solver.solve(callback=None if args.quiet else _allpairs_progress(banner, forecast),
                               max_iterations=args.max_iterations,
                               checkpoint=args.checkpoint, checkpoint_seconds=args.checkpoint_seconds,
                               resume=args.resume, initial=args.initial, accuracy=args.accuracy, restart=args.restart)

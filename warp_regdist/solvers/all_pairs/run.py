@@ -14,6 +14,7 @@ import numpy as np
 
 from ..common import interrupt
 from ..common.admm import CONVERGED, INTERRUPTED, run_iterations
+from .forecast import ChangeTrend
 from .state import STATE_ROWS
 from ...errors import ConvergenceWarning
 from ...kernels.all_pairs import H2, RX2, SX2, U2, X2
@@ -68,6 +69,8 @@ class PairsRun:
         # stopping.gradient_excess of the U of the last change test (measured on the device); excess(U (n, n)):
         # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
+        self.trend = ChangeTrend()   # this run's checks (a resumed run forecasts from its own)
+        self.warned_stall = False
 
     def restore(self, saved):
         st = self.state
@@ -164,13 +167,30 @@ class PairsRun:
             self.change_test.update(st.view("U").reshape(-1, 1), it)
             if tol.eps_excess < math.inf:
                 self.last_excess = st.gradient_excess(float(np.max(self.change_test.snapshot)))
+            self._follow_trend(it)
         if self.callback is not None:
-            self.callback(Progress(it, self._elapsed(), self.tests(), checked=due, memory_bytes=self.memory))
+            self.callback(Progress(it, self._elapsed(), self.tests(), checked=due, memory_bytes=self.memory,
+                                   settling=not self.trend.stalled()))
         if np.all(res <= eps) and self.change_test.settled[0] and self.last_excess <= tol.eps_excess:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
             return True
         return False
+
+    def _follow_trend(self, it):
+        """Record the check of iteration ``it``; the first time the change still to come has reached no
+        new low for many checks (ChangeTrend.stalled), a ConvergenceWarning that says so and what helps."""
+        trend, tol = self.trend, self.options
+        was_stalled = trend.stalled()
+        trend.add(it, float(self.change_test.change[0]))
+        if trend.stalled() and not was_stalled and not self.warned_stall:
+            self.warned_stall = True
+            low_at, low = trend.lowest()
+            warnings.warn(f"all pairs is not settling: the change still to come has reached no new low since "
+                          f"iteration {low_at} ({low:.3g}; now {trend.changes[-1]:.3g} at iteration {it}, threshold "
+                          f"{tol.eps_change:.3g}), so the run may reach its cap ({self.max_iterations}) unconverged: "
+                          "a larger accuracy stops sooner, and Ctrl-C (or SIGTERM) keeps the current iterate",
+                          ConvergenceWarning, stacklevel=2)
 
     def tests(self):
         """The stopping rule's parts at the last test, as :class:`~warp_regdist.solvers.common.progress.StopTest`."""

@@ -60,9 +60,11 @@ from ...geometry.operators import build_operators, choose_triangulation, largest
 from ...kernels.lanes import SCALARS
 from ...options import AllPairsOptions
 from ..common.admm import PenaltySchedule
+from ..common.progress import Progress
 from .checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
 from .eigenbasis import EigenbasisADMM, EigenbasisUStep
+from .forecast import RunForecast, typical_iterations, with_cap
 from .run import PairsRun, final_result
 from .state import SymmetricADMM, middle_matrix
 from .memory import check_memory, memory_estimate
@@ -165,6 +167,19 @@ class AllPairsSolver:
         small = self.mesh.n_vertices <= options.eigenbasis_max_vertices
         return "eigenbasis" if self.device.is_cpu and small else "consensus"
 
+    def forecast(self, accuracy=None, **options):
+        """What :meth:`solve` with the same ``accuracy`` and ``options`` will take, before it starts: a
+        :class:`~warp_regdist.solvers.all_pairs.forecast.RunForecast` (engine, memory, typical iterations
+        at this size and accuracy, the cap)."""
+        base = self.options if accuracy is None else self.options.at_accuracy(accuracy)
+        run_options = base.replace(**options)
+        engine = self.engine(run_options)
+        n = self.mesh.n_vertices
+        run_options = with_cap(n, run_options)
+        memory = sum(memory_estimate(n, self.mesh.n_elements, self.dtype, self.device, engine))
+        return RunForecast(n, engine, memory, typical_iterations(n, min(run_options.accuracy, 0.1)),
+                           run_options.max_iterations, run_options.accuracy)
+
     @functools.cached_property
     def hierarchy(self):
         """The consensus engine's X-step multigrid preconditioner (built on first use, shared by every solve)."""
@@ -190,7 +205,8 @@ class AllPairsSolver:
             Called after every iteration as ``callback(progress)`` with a
             :class:`~warp_regdist.solvers.common.progress.Progress`: the iteration, the seconds, every stop
             test against its threshold (``checked`` at the iterations that measure them all, once per
-            ``change_window``) and the memory footprint.
+            ``change_window``) and the memory footprint; and once before the engine's setup, when every
+            argument has been checked, with the iteration the run starts from and no tests.
         checkpoint : str or os.PathLike or None
             File (.npz) to which the whole state (iterates, duals, penalties, iteration count,
             residual history and the problem's fingerprint: mesh hash, alpha_hat, dtype,
@@ -253,7 +269,7 @@ class AllPairsSolver:
             raise ValueError(f"expected resume (the same problem) or initial (a warm start), got both: "
                              f"{resume!r} and {initial!r}")
         engine = self.engine(run_options)
-        run_options = run_options.for_engine(engine)
+        run_options = with_cap(mesh.n_vertices, run_options.for_engine(engine))
         fingerprint = problem_fingerprint(mesh, self.alpha_hat, dtype, run_options.rho2_factor, self.triangulation,
                                           self.source_triangles.rule,
                                           engine)
@@ -278,6 +294,9 @@ class AllPairsSolver:
                 raise ValueError(f"expected max_iterations above {int(saved['iteration'])}, the iteration of the "
                                  f"checkpoint resumed ({os.fspath(resume)!r}), got {run_options.max_iterations}: "
                                  "the run would stop where it is")
+            if callback is not None:  # the arguments hold: the engine's setup starts
+                callback(Progress(0 if saved is None else int(saved["iteration"]), time.perf_counter() - t0, (),
+                                  checked=False, memory_bytes=memory))
             state = stack.enter_context(contextlib.closing(
                 EigenbasisADMM(self.operators, self.alpha_hat, self.device, dtype, run_options, self.u_step,
                                self.source_triangles)

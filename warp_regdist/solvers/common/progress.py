@@ -31,7 +31,8 @@ class Progress:
     seconds : float
         Wall time since the solve began (a resumed run counts its earlier part too).
     tests : tuple of StopTest
-        Every part of the stopping rule against its threshold; the solve stops when all hold.
+        Every part of the stopping rule against its threshold; the solve stops when all hold (empty:
+        the report all pairs makes before its setup).
     checked : bool
         Whether every test was measured at this iteration (some are measured once per window of
         iterations, and keep their last value in between).
@@ -39,6 +40,9 @@ class Progress:
         The solve's estimated footprint (0 where not estimated).
     columns, columns_done : int
         Columns of a batch and how many of them have stopped (the tests are those of the others).
+    settling : bool
+        All pairs: False once the change still to come has reached no new low for many checks
+        (:class:`~warp_regdist.solvers.all_pairs.forecast.ChangeTrend`).
     """
 
     iteration: int
@@ -48,11 +52,12 @@ class Progress:
     memory_bytes: int = 0
     columns: int = 1
     columns_done: int = 0
+    settling: bool = True
 
     @property
     def converged(self):
-        """Whether every test holds."""
-        return all(t.holds for t in self.tests)
+        """Whether every test holds (False without tests)."""
+        return bool(self.tests) and all(t.holds for t in self.tests)
 
     def __str__(self):
         parts = []
