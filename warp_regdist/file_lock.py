@@ -10,7 +10,9 @@ The lock file is removed on release. Without ``fcntl`` (not POSIX) no lock is ta
 from __future__ import annotations
 
 import os
+import types
 
+fcntl: types.ModuleType | None
 try:
     import fcntl
 except ImportError:  # pragma: no cover - not POSIX

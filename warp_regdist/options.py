@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 
@@ -51,11 +52,11 @@ def _check_number(name, value, low=0.0, strict=False, infinite=False, integer=Fa
 class _Options:
     """What both options classes share: checks of every field and :meth:`replace`."""
 
-    _INFINITE = ()     # fields that may be inf (that test switched off)
-    _POSITIVE = ()     # fields that must be > 0 (the others >= 0)
-    _INTEGERS = ()     # fields that are integers >= 1
-    _CHOICES = {}      # fields that take one of a few strings
-    _OPTIONAL = ()     # fields that may be None (a default chosen later)
+    _INFINITE: ClassVar[tuple[str, ...]] = ()     # fields that may be inf (that test switched off)
+    _POSITIVE: ClassVar[tuple[str, ...]] = ()     # fields that must be > 0 (the others >= 0)
+    _INTEGERS: ClassVar[tuple[str, ...]] = ()     # fields that are integers >= 1
+    _CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {}   # fields that take one of a few strings
+    _OPTIONAL: ClassVar[tuple[str, ...]] = ()     # fields that may be None (a default chosen later)
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -167,11 +168,11 @@ class SolverOptions(_Options):
     check_every: object = None
     cpu_blocks: int = 1
 
-    _INFINITE = ("eps_change", "eps_estimate", "rho_doubling")
-    _POSITIVE = ("eps_rel", "eps_rel_dual", "relaxation", "rho0", "rho_max", "rho_doubling", "cg_fraction",
+    _INFINITE: ClassVar[tuple[str, ...]] = ("eps_change", "eps_estimate", "rho_doubling")
+    _POSITIVE: ClassVar[tuple[str, ...]] = ("eps_rel", "eps_rel_dual", "relaxation", "rho0", "rho_max", "rho_doubling", "cg_fraction",
                  "cg_primal_fraction", "cg_rtol", "max_gradient", "gradient_smoothing")
-    _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations", "cpu_blocks")
-    _CHOICES = {"gradient_factorization": ("auto", "pardiso", "superlu")}
+    _INTEGERS: ClassVar[tuple[str, ...]] = ("change_window", "max_iterations", "cg_max_iterations", "cpu_blocks")
+    _CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"gradient_factorization": ("auto", "pardiso", "superlu")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,11 +234,11 @@ class AllPairsOptions(_Options):
     eps_change: float = _CHANGE_SHARE * DEFAULT_ACCURACY
     eps_excess: float = 5e-3
     change_window: int = 50
-    max_iterations: int = None
+    max_iterations: int | None = None
     relaxation: float = 1.7
-    rho0: float = None
-    rho_max: float = None
-    rho_doubling: float = None
+    rho0: float | None = None
+    rho_max: float | None = None
+    rho_doubling: float | None = None
     rho2_factor: float = 25.0
     schedule: object = None
     cg_fraction: float = 1e-3
@@ -247,18 +248,18 @@ class AllPairsOptions(_Options):
     engine: str = "auto"
     eigenbasis_max_vertices: int = 2000
 
-    _INFINITE = ("eps_change", "eps_excess", "rho_doubling")
-    _CHOICES = {"engine": ("auto", "eigenbasis", "consensus")}
-    _OPTIONAL = ("rho0", "rho_max", "rho_doubling", "max_iterations")
+    _INFINITE: ClassVar[tuple[str, ...]] = ("eps_change", "eps_excess", "rho_doubling")
+    _CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"engine": ("auto", "eigenbasis", "consensus")}
+    _OPTIONAL: ClassVar[tuple[str, ...]] = ("rho0", "rho_max", "rho_doubling", "max_iterations")
 
     def for_engine(self, engine):
         """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties
         (``ENGINE_PENALTIES``) in the penalty fields left None."""
         defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINE_PENALTIES[engine]))
         return self.replace(engine=engine, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
-    _POSITIVE = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
+    _POSITIVE: ClassVar[tuple[str, ...]] = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")
-    _INTEGERS = ("change_window", "max_iterations", "cg_max_iterations", "eigenbasis_max_vertices")
+    _INTEGERS: ClassVar[tuple[str, ...]] = ("change_window", "max_iterations", "cg_max_iterations", "eigenbasis_max_vertices")
 
     @classmethod
     def for_accuracy(cls, accuracy, **overrides):

@@ -23,6 +23,7 @@ from matplotlib.cm import ScalarMappable
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
+from matplotlib.tri import Triangulation
 
 from ..atomic_write import write_atomic
 from .contours import isoline_segments, plane_section, surface_arrays, vertex_values
@@ -514,7 +515,7 @@ def render_cut(
     ax.set_ylabel(f"along ({up[0]:.3g}, {up[1]:.3g}, {up[2]:.3g})", fontsize=8)
     if tri_finite.any():
         good = xy[tri_finite].reshape(-1, 2)
-        ax.tripcolor(good[:, 0], good[:, 1], np.arange(len(good)).reshape(-1, 3),
+        ax.tripcolor(Triangulation(good[:, 0], good[:, 1], np.arange(len(good)).reshape(-1, 3)),
                      point_values[tri_finite].ravel(), shading="gouraud", cmap=colormap, norm=norm)
     if not tri_finite.all():
         ax.add_collection(PolyCollection(xy[~tri_finite], facecolors=_UNREACHABLE_RGB,
@@ -525,7 +526,7 @@ def render_cut(
         segments, _, _ = isoline_segments(flat, np.arange(len(flat)).reshape(-1, 3),
                                            point_values[tri_finite].ravel(), levels)
         seg2 = np.stack([segments @ right, segments @ up], axis=-1)
-        ax.add_collection(LineCollection(seg2, colors=[_ISOLINE_RGBA], linewidths=0.7, capstyle="round"),
+        ax.add_collection(LineCollection(list(seg2), colors=[_ISOLINE_RGBA], linewidths=0.7, capstyle="round"),
                           autolim=False)
     cax = fig.add_axes(((left_in + _PANEL_WIDTH_IN + 0.15) / fig_w, (bottom_in + 0.1 * panel_h) / fig_h,
                         0.16 / fig_w, 0.8 * panel_h / fig_h))

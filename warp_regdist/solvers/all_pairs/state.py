@@ -141,7 +141,7 @@ class _Part:
         lanes = (b1 - b0) * W // width  # the lane-wise launches' blocks
 
         def view(name, *index):
-            return _lane_view(arrays[name][(*index, cols)], sc, W, width)
+            return _lane_view(arrays[name][index + (cols,)], sc, W, width)
 
         area = np.zeros(nb * W)
         area[:n] = setup.vertex_volumes

@@ -26,7 +26,7 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 _flag = np.zeros(1, dtype=np.uint8)
 _depth = 0
-_linked = weakref.WeakSet()
+_linked: weakref.WeakSet = weakref.WeakSet()
 _by = [0]
 
 

@@ -49,7 +49,7 @@ from ...errors import WorkerError
 __all__ = ["WorkerPool", "SharedArrays", "processes_available", "watch", "check_workers"]
 
 _ALIGN = 64
-_WATCHED = []  # the pools whose workers run calls that the current loop of this process waits for
+_WATCHED: list = []  # the pools whose workers run calls that the current loop of this process waits for
 _PARENT_POLL = 0.2  # seconds between a worker's checks that its parent is alive
 
 
