@@ -11,8 +11,8 @@ import warp_regdist as wrd
 from same_run import assert_same_run, on_cuda, same_count
 from test_multigrid import _lanes, _problem
 from warp_regdist.kernels.lanes import SCALARS, lane_type
-from warp_regdist.linalg.multigrid import smoothed_aggregation
-from warp_regdist.linalg.pcg import BatchedPCG, JacobiPreconditioner
+from warp_regdist.linalg.multigrid import MultigridPreconditioner, smoothed_aggregation
+from warp_regdist.linalg.pcg import BatchedPCG, JacobiPreconditioner, Preconditioner
 
 
 @pytest.fixture(scope="module")
@@ -177,6 +177,19 @@ def test_preconditioner_operator_and_bad_options(spot_stiffness, device):
     with pytest.raises(ValueError, match=r"expected a preconditioner for 4764 unknowns, got 300"):
         small = JacobiPreconditioner(spot_stiffness[:300, :300], wp.float64, 1, device)
         BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner=small)
+    assert isinstance(op, Preconditioner) and isinstance(MultigridPreconditioner(smoothed_aggregation(spot_stiffness),
+                                                                               wp.float64, 1, 1, device), Preconditioner)
+
+    class NoSize:                                      # record and set_matrix, but no n: not a Preconditioner
+        def record(self, r, z, blocks):
+            return []
+
+        def set_matrix(self, matrix):
+            pass
+
+    with pytest.raises(ValueError, match=r"expected preconditioner 'multigrid', 'jacobi', a Hierarchy or a "
+                                         r"Preconditioner \(n, record and set_matrix\), got <"):
+        BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner=NoSize())
     pcg = BatchedPCG(spot_stiffness, wp.float64, 1, 1, device, preconditioner="jacobi")
     with pytest.raises(ValueError, match=r"expected atol a scalar or a \(1,\) array, got shape \(2,\)"):
         pcg.solve(_lanes(b, "float64", device), _lanes(0 * b, "float64", device), _lanes(mask, "float64", device),

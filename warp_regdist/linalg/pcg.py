@@ -21,6 +21,8 @@ never: with ``capture=True`` the whole solve is one Warp graph whose loop is a
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 import scipy.sparse as sp
 import warp as wp
@@ -30,7 +32,25 @@ from ..kernels.lanes import row_dim, thread_span
 from ..kernels.pcg import ITERATION, RR, pcg_kernels
 from .multigrid import Hierarchy, MultigridPreconditioner, smoothed_aggregation
 
-__all__ = ["BatchedPCG", "JacobiPreconditioner"]
+__all__ = ["BatchedPCG", "Preconditioner", "JacobiPreconditioner"]
+
+
+@runtime_checkable
+class Preconditioner(Protocol):
+    """What :class:`BatchedPCG` needs of a preconditioner z = M r (M symmetric positive definite on the
+    free unknowns): its size, its launches recorded once, and a way to follow a new matrix in place."""
+
+    n: int
+    """Unknowns (rows of r and z)."""
+
+    def record(self, r: wp.array, z: wp.array, blocks: int) -> list:
+        """Recorded launches (``wp.launch(..., record_cmd=True)``) computing z = M r on column blocks
+        0..blocks-1 of the (n, nb) lane arrays ``r`` and ``z``; replayed at every iteration."""
+        ...
+
+    def set_matrix(self, matrix) -> None:
+        """Follow a change of the PCG's matrix (same pattern) without invalidating the recorded launches."""
+        ...
 
 
 def _write(array, values):
@@ -158,13 +178,12 @@ class BatchedPCG:
             return MultigridPreconditioner(spec, scalar, width, blocks, self.device)
         if isinstance(spec, str) and spec == "jacobi":
             return JacobiPreconditioner(K, scalar, width, self.device)
-        if not isinstance(spec, str) and callable(getattr(spec, "record", None)) \
-                and callable(getattr(spec, "set_matrix", None)):
-            if getattr(spec, "n", None) != self.n:
-                raise ValueError(f"expected a preconditioner for {self.n} unknowns, got {getattr(spec, 'n', None)}")
+        if isinstance(spec, Preconditioner):
+            if spec.n != self.n:
+                raise ValueError(f"expected a preconditioner for {self.n} unknowns, got {spec.n}")
             return spec
-        raise ValueError(f"expected preconditioner 'multigrid', 'jacobi', a Hierarchy or an operator with "
-                         f"n, record and set_matrix, got {spec!r}")
+        raise ValueError(f"expected preconditioner 'multigrid', 'jacobi', a Hierarchy or a Preconditioner (n, record "
+                         f"and set_matrix), got {spec!r}")
 
     def set_matrix(self, matrix):
         """Replace K by ``matrix`` of the same sparsity pattern (a new penalty, a new shift).
