@@ -166,6 +166,24 @@ def test_polish_of_solve_many_is_per_column():
     assert np.all(polished.distance[[5, 40], 1] == 0.0) and polished.distance[0, 0] == 0.0
 
 
+def test_a_result_keeps_its_problem_not_its_solver():
+    """vjp and polish work from the data a result keeps, after its solver (device arrays, workers) is gone."""
+    import gc
+    import weakref
+
+    mesh = hole_mesh()
+    solver = wrd.DistanceSolver(mesh, 0.1, workers=1)
+    res = solver.solve([0])
+    b = np.random.default_rng(4).random(mesh.n_vertices)
+    before = res.vjp(b).vertices
+    gone = weakref.ref(solver)
+    del solver
+    gc.collect()
+    assert gone() is None
+    np.testing.assert_array_equal(res.vjp(b).vertices, before)
+    assert res.polish().polish_change >= 0.0
+
+
 def test_solve_many_vjp_is_the_sum_of_its_columns():
     mesh = hole_mesh()
     solver = wrd.DistanceSolver(mesh, 0.1, workers=1)

@@ -48,14 +48,14 @@ class _Distance(torch.autograd.Function):
         if not res.converged:
             raise ValueError(f"expected a converged solve to differentiate, got one stopped after {res.iterations} "
                              "ADMM iterations")
-        solution = smoothed_solution(solver, res.distance, sources)
-        ctx.solver, ctx.solution = solver, solution
-        return torch.as_tensor(solution.distance, dtype=vertices.dtype, device=vertices.device)
+        ctx.problem = solver.smoothing_problem()
+        ctx.solution = smoothed_solution(ctx.problem, res.distance, sources)
+        return torch.as_tensor(ctx.solution.distance, dtype=vertices.dtype, device=vertices.device)
 
     @staticmethod
     def backward(ctx, grad):
         b = np.nan_to_num(grad.detach().cpu().numpy().astype(np.float64))
-        dx, da = adjoint_gradients(ctx.solver, ctx.solution, b)
+        dx, da = adjoint_gradients(ctx.problem, ctx.solution, b)
         dv = torch.as_tensor(dx, dtype=grad.dtype, device=grad.device) if ctx.needs_input_grad[0] else None
         dalpha = torch.tensor(da, dtype=grad.dtype, device=grad.device) if ctx.needs_input_grad[1] else None
         return dv, dalpha, None, None, None

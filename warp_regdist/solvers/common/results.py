@@ -59,22 +59,23 @@ class DistanceResult(OptimizeResult):
         The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
-    def _attach(self, solver, source_sets, options=None, surface=None):
-        """Keep the solver, the vertex source sets, the options of the solve and, for points, the
-        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on, for :meth:`vjp`
-        and :meth:`polish` (an attribute, not a key)."""
-        object.__setattr__(self, "_problem", (solver, source_sets, options, surface))
+    def _keep(self, problem, source_sets, surface=None):
+        """Keep what :meth:`vjp` and :meth:`polish` need (an attribute, not a key): the
+        :class:`~warp_regdist.solvers.single_source.gradients.SmoothingProblem` of the solve (None: not
+        differentiable), the vertex source sets and, for points, the
+        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on."""
+        object.__setattr__(self, "_problem", (problem, source_sets, surface))
 
     def _smoothable(self, verb):
-        """(solver, source sets, distance (n', k) on the solver's mesh, one column?, the solve's options,
-        surface sources or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the
-        operation in their messages)."""
-        solver, source_sets, options, surface = vars(self).get("_problem", (None, None, None, None))
-        if solver is None:
+        """(problem, source sets, distance (n', k) on the problem's mesh, one column?, surface sources or
+        None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the operation in their
+        messages)."""
+        problem, source_sets, surface = vars(self).get("_problem", (None, None, None))
+        if problem is None:
             raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertices or points to "
                              f"{verb}, got one from curves (or a copy)")
-        if solver.regularizer.name != "dirichlet" or solver.mesh.element_weights is not None:
-            what = "a point cloud" if solver.mesh.element_weights is not None else repr(solver.regularizer.name)
+        if problem.regularizer != "dirichlet" or problem.mesh.element_weights is not None:
+            what = "a point cloud" if problem.mesh.element_weights is not None else repr(problem.regularizer)
             raise ValueError(f"expected the Dirichlet regularizer on a mesh to {verb}, got {what}")
         converged = np.atleast_1d(self.converged)
         if not converged.all():
@@ -82,8 +83,7 @@ class DistanceResult(OptimizeResult):
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
         distance = np.asarray(self.distance if surface is None else self.refined_distance)
         one = distance.ndim == 1
-        options = solver.options if options is None else options
-        return solver, source_sets, distance[:, None] if one else distance, one, options, surface
+        return problem, source_sets, distance[:, None] if one else distance, one, surface
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
@@ -102,7 +102,7 @@ class DistanceResult(OptimizeResult):
         """
         from ..single_source.gradients import vector_jacobian_product
 
-        solver, source_sets, distance, one, options, surface = self._smoothable("differentiate")
+        problem, source_sets, distance, one, surface = self._smoothable("differentiate")
         n = np.asarray(self.distance).shape[0]
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
@@ -118,12 +118,12 @@ class DistanceResult(OptimizeResult):
         grad = grad[:, None] if one else grad
         if surface is not None:      # the new vertices of the refined mesh are no outputs: zero
             grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
-        out = vector_jacobian_product(solver, distance, source_sets, grad, options)
+        out = vector_jacobian_product(problem, distance, source_sets, grad)
         if surface is not None:
             from ...geometry.surface_points import refinement_vjp
 
             out["refined_vertices"] = out.vertices
-            out["vertices"], gb = refinement_vjp(surface.refinement, solver.mesh.vertices[:n], surface.bary,
+            out["vertices"], gb = refinement_vjp(surface.refinement, problem.mesh.vertices[:n], surface.bary,
                                                  out.vertices)
             points = [gb[own] for own in surface.own_points]
             out["points"] = points[0] if one else points
@@ -146,11 +146,11 @@ class DistanceResult(OptimizeResult):
         from ..single_source.gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        solver, source_sets, distance, one, options, surface = self._smoothable("polish")
+        problem, source_sets, distance, one, surface = self._smoothable("polish")
         out = DistanceResult(self)
-        out._attach(*vars(self)["_problem"])
+        out._keep(*vars(self)["_problem"])
         del out["error_estimate"]
-        solutions = [smoothed_solution(solver, distance[:, j], source_sets[j], j, options)
+        solutions = [smoothed_solution(problem, distance[:, j], source_sets[j], j)
                      for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])

@@ -31,6 +31,7 @@ along the central path's tangent between levels; H is factorized by MKL PARDISO'
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from typing import NamedTuple
@@ -45,9 +46,10 @@ from ...errors import ConvergenceWarning
 from ...geometry.intrinsic import flat_layout, flat_layout_gradient, length_gradient
 from ...kernels import adjoint
 from ...linalg.pardiso import PardisoCholesky, PardisoError, load_mkl
-from ..common.source_triangles import corner_sides
+from ..common.source_triangles import SourceTriangles, corner_sides
+from .sources import vertex_sources
 
-__all__ = ["Gradients", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
+__all__ = ["Gradients", "SmoothingProblem", "SmoothedProblem", "SmoothedSolution", "smoothed_solution", "adjoint_gradients",
            "vector_jacobian_product"]
 
 _START = 1e-2            # mu_hat of the first level; each level divides it by _RATIO down to the final mu_hat
@@ -57,6 +59,22 @@ _MAX_NEWTON = 60         # Newton steps per level
 _INTERIOR = 1.0 - 1e-3   # the ADMM distance is scaled so that max |g| (max u_a / l_sa on wedges) is at most this
 _TO_BOUNDARY = 0.9       # a Newton step keeps at least a tenth of every element's slack 1 - |g|^2
 
+
+
+@dataclasses.dataclass(frozen=True)
+class SmoothingProblem:
+    """What :meth:`~warp_regdist.DistanceResult.vjp` and ``polish`` need of the solve behind a result: the
+    mesh and its operators, alpha and alpha_hat, the regularizer's name, the source triangles' constraint
+    and the solve's options (not the solver, whose device arrays and worker processes a result would
+    otherwise keep alive)."""
+
+    mesh: object
+    operators: object
+    alpha: float
+    alpha_hat: float
+    regularizer: str
+    source_triangles: SourceTriangles
+    options: object
 
 class Gradients(OptimizeResult):
     """Result of :meth:`~warp_regdist.DistanceResult.vjp`.
@@ -386,19 +404,20 @@ class SmoothedSolution(NamedTuple):
     change: float
 
 
-def smoothed_solution(solver, distance, sources, column=0, options=None):
-    """The :class:`SmoothedSolution` of ``solver``'s problem from vertex ``sources``, by Newton's method
-    from ``distance`` (n,), a converged solve's (``column`` names the source set in errors), at the
-    barrier weight ``options.gradient_smoothing`` with ``options.gradient_factorization``
-    (a :class:`~warp_regdist.SolverOptions`; None: the solver's)."""
-    options = solver.options if options is None else options
+def smoothed_solution(problem, distance, sources, column=0):
+    """The :class:`SmoothedSolution` of ``problem`` (a :class:`SmoothingProblem`) from vertex ``sources``, by
+    Newton's method from ``distance`` (n,), a converged solve's (``column`` names the source set in errors),
+    at the barrier weight ``options.gradient_smoothing`` with ``options.gradient_factorization`` of the
+    problem's options."""
+    options = problem.options
     mu_hat = float(options.gradient_smoothing)
-    sources, reachable = solver.source_mask(sources, column)
+    mesh = problem.mesh
+    sources, reachable = vertex_sources(sources, column, mesh.n_vertices, mesh.components())
     free = reachable.copy()
     free[sources] = False
     backend = factorization_backend(options.gradient_factorization)
-    wedges = solver.source_triangles.corners(sources)
-    v, lu, steps, reached = SmoothedProblem(solver.operators, solver.alpha, mu_hat, free, backend, wedges).minimize(
+    wedges = problem.source_triangles.corners(sources)
+    v, lu, steps, reached = SmoothedProblem(problem.operators, problem.alpha, mu_hat, free, backend, wedges).minimize(
         distance[free])
     if reached > mu_hat:
         warnings.warn(f"the smoothed problem of source set {column} was solved at gradient_smoothing {reached:g}, not "
@@ -411,7 +430,7 @@ def smoothed_solution(solver, distance, sources, column=0, options=None):
     return SmoothedSolution(u, free, wedges, lu, steps, reached, change)
 
 
-def adjoint_gradients(solver, solution, b):
+def adjoint_gradients(problem, solution, b):
     """(dL/dx (n, 3), dL/dalpha_hat) for dL/du = ``b`` (n,) at a :class:`SmoothedSolution`: H w = b on the
     free vertices, then the module docstring's formulas."""
     f = solution.free
@@ -419,22 +438,22 @@ def adjoint_gradients(solver, solution, b):
     w = np.zeros(f.size)
     w[f] = solution.lu.solve(rhs)
     u = np.where(f, solution.distance, 0.0)
-    dx = _position_gradient(solver.mesh, solver.operators, u, w, solver.alpha_hat, solution.mu_hat, solution.wedges)
-    return dx, -solver.operators.length_scale * float(w @ (solver.operators.stiffness @ u))
+    dx = _position_gradient(problem.mesh, problem.operators, u, w, problem.alpha_hat, solution.mu_hat, solution.wedges)
+    return dx, -problem.operators.length_scale * float(w @ (problem.operators.stiffness @ u))
 
 
-def vector_jacobian_product(solver, distance, source_sets, grad_u, options=None):
+def vector_jacobian_product(problem, distance, source_sets, grad_u):
     """The :class:`Gradients` of sum(grad_u * distance) (module docstring) for the columns of a
-    converged solve of ``solver`` from vertex ``source_sets``; ``distance``, ``grad_u`` (n, k);
-    ``options`` as in :func:`smoothed_solution`."""
-    options = solver.options if options is None else options
+    converged solve of ``problem`` (a :class:`SmoothingProblem`) from vertex ``source_sets``;
+    ``distance``, ``grad_u`` (n, k)."""
+    options = problem.options
     t0 = time.perf_counter()
     n, k = distance.shape
     vertices, alpha_hat, steps, change, smoothing = np.zeros((n, 3)), 0.0, 0, 0.0, 0.0
     smoothed = np.zeros((n, k))
     for j in range(k):
-        solution = smoothed_solution(solver, distance[:, j], source_sets[j], j, options)
-        dx, da = adjoint_gradients(solver, solution, grad_u[:, j])
+        solution = smoothed_solution(problem, distance[:, j], source_sets[j], j)
+        dx, da = adjoint_gradients(problem, solution, grad_u[:, j])
         vertices += dx
         alpha_hat += da
         steps += solution.steps

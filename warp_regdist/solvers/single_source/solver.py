@@ -41,6 +41,7 @@ from ..common.processes import WorkerPool, check_workers, processes_available, w
 from ..common.results import DistanceResult
 from .batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
+from .gradients import SmoothingProblem
 from ..common.source_triangles import SourceTriangles, check_source_triangles
 from ..common.stopping import steep_columns
 
@@ -150,6 +151,12 @@ class DistanceSolver:
         self._workspaces = {}
         self._refined = None   # (key, the DistanceSolver of the latest refined mesh of points and curves)
 
+    def smoothing_problem(self, options=None):
+        """The :class:`~warp_regdist.solvers.single_source.gradients.SmoothingProblem` of a solve with
+        ``options`` (None: this solver's): what a result's vjp and polish keep of this solver."""
+        return SmoothingProblem(self.mesh, self.operators, self.alpha, self.alpha_hat, self.regularizer.name,
+                                self.source_triangles, self.options if options is None else options)
+
     def source_mask(self, sources, column=0):
         """Validated vertex ``sources`` of column ``column`` -> (indices (s,), reachable (n,) bool: the
         vertices of the sources' connected components)."""
@@ -252,9 +259,9 @@ class DistanceSolver:
             res = refined._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None, None, False,
                                       callback, options)
             if curves is None:   # vjp and polish on the refined mesh, pulled back through its new vertices
-                res._attach(refined, list(S.sets), options, S)
+                res._keep(refined.smoothing_problem(options), list(S.sets), S)
             else:
-                res._attach(None, None)
+                res._keep(None, None)
             return refined_result(res, S, self.mesh.n_vertices, closed)
         if source_sets is None:
             raise ValueError("expected sources, points or a curve, got none")
@@ -294,7 +301,7 @@ class DistanceSolver:
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
-        res._attach(self, source_sets, options)
+        res._keep(self.smoothing_problem(options), source_sets)
         steep, gradient = steep_columns(self.source_triangles, res.distance, options.max_gradient,
                                        [src for src, _ in sets])
         res.converged &= ~steep
