@@ -32,8 +32,8 @@ gradient_excess in % of the max distance, one process. Writes
 benchmarks/results/all_pairs_accuracy.csv.
 
 With ``--larger``: the same at 0.01 and 0.005 on decimations of the shared meshes to 300-500 vertices
-(``LARGER``; their exact minimizers only with ``--exact``, below), against 5,000 iterations of the symmetric
-splitting (research/symmetric_all_pairs.py ``SymmetricADMM.reference``, cached in ``--cache``), and
+(``LARGER``; their exact minimizers only with ``--exact``, below), against a long run of the same problem
+(:func:`long_run_reference`, cached in ``--cache``), and
 beside each run the same solve without the steepness test (``eps_excess=inf``, columns
 ``unchecked_*``). With ``--triangulations mesh intrinsic`` each decimation is solved on both operators
 (the mesh's own and the intrinsic Delaunay ones), each against its own reference. Writes
@@ -64,7 +64,6 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-sys.path.append(os.path.join(HERE, "..", "research"))
 
 import meshes  # noqa: E402
 import warp as wp  # noqa: E402
@@ -115,15 +114,19 @@ def exact_cases(cache):
 
 
 def long_run_reference(cache, name, mesh, alpha_hat, triangulation):
-    """The 5,000-iteration symmetric splitting's U on ``mesh``, computed once into ``cache``."""
+    """U on ``mesh`` of the eigenbasis engine in float64 at accuracy 0.0005, at most REFERENCE_ITERATIONS
+    iterations (the runs' own problem, source triangles included), computed once into ``cache``."""
     import stopping
-    from symmetric_all_pairs import SymmetricADMM
 
-    key = f"symmetric {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat}"
-    key += "" if triangulation == "mesh" else f" {triangulation}"
-    reference = stopping.cached(cache, key, lambda: SymmetricADMM(mesh, alpha_hat, triangulation).reference(
-        REFERENCE_ITERATIONS)[0])
-    return np.maximum(reference, 0.0)
+    def long_run():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", wrd.ConvergenceWarning)
+            return wrd.AllPairsSolver(mesh, alpha_hat, triangulation=triangulation,
+                                      options=wrd.AllPairsOptions(engine="eigenbasis")).solve(
+                accuracy=0.0005, max_iterations=REFERENCE_ITERATIONS).distance
+
+    key = f"eigenbasis 0.0005 {REFERENCE_ITERATIONS} {name} decimated {mesh.n_vertices} {alpha_hat} {triangulation}"
+    return stopping.cached(cache, key, long_run)
 
 
 def exact_reference(cache, name, mesh, alpha_hat):

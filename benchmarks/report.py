@@ -59,12 +59,12 @@ def print_result(row):
 
 def stamp():
     """Where and when a measurement ran: date, commit (with "+changes" when the package, its kernels,
-    the benchmarks or the research scripts differ from it), CPU model, core count, command."""
+    or the benchmarks differ from it), CPU model, core count, command."""
     try:
         commit = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
         dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no", "--",
-                                "warp_regdist", "kernels", "benchmarks", "research"], capture_output=True, text=True).stdout.strip()
+                                "warp_regdist", "kernels", "benchmarks"], capture_output=True, text=True).stdout.strip()
         commit += "+changes" if dirty else ""
     except OSError:
         commit = "unknown"
