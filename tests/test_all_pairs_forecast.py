@@ -1,5 +1,5 @@
 """What an all-pairs run is told before it starts (typical iterations, the default cap) and while it runs
-(not settling): warp_regdist.solvers.all_pairs.forecast."""
+(not settling): warp_regdist.solvers.all_pairs.forecast; and what the run needs of either engine (PairsEngine)."""
 
 import csv
 import os
@@ -82,3 +82,22 @@ def test_the_forecast_says_the_engine_memory_typical_iterations_and_cap_before_t
                                     "size and accuracy 0.01 (cap 3000)")
     assert solver.forecast(max_iterations=40, engine="consensus").max_iterations == 40
     assert solver.forecast(engine="consensus").engine == "consensus"
+
+
+@pytest.mark.parametrize("engine", ["eigenbasis", "consensus"])
+def test_both_engines_states_are_pairs_engines(engine, monkeypatch):
+    from warp_regdist.solvers.all_pairs import run
+    from warp_regdist.solvers.all_pairs.engine import PairsEngine
+
+    seen = []
+    start = run.PairsRun.__init__
+
+    def keep(self, state, *args):
+        seen.append(state)
+        start(self, state, *args)
+
+    monkeypatch.setattr(run.PairsRun, "__init__", keep)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        wrd.all_pairs(wrd.Mesh(*meshes.icosphere(1, 1.0)), device="cpu", workers=1, engine=engine, max_iterations=2)
+    assert len(seen) == 1 and isinstance(seen[0], PairsEngine) and seen[0].engine == engine

@@ -186,7 +186,7 @@ class EigenbasisADMM(PairsState):
         self.put("DZ", self.view("DZ_acc"))
         return s2, dy2
 
-    def x_and_element_steps(self, atol, rtol, max_iterations):
+    def linear_and_element_steps(self, atol, rtol, max_iterations):
         """The U-step (dense, on the host) then the element step; returns 0 (no PCG iterations)."""
         rho = self.penalties[0]
         n = self.n
@@ -206,8 +206,8 @@ class EigenbasisADMM(PairsState):
         self.rho_v = rho
         return 0
 
-    def consensus(self):
-        """No consensus step: per-column R2, G2, Z2 sums (3, nb W) and the pair sums (5,) with X = U, H = 0."""
+    def coupling_step(self):
+        """No coupling step (U is symmetric by construction): per-column R2, G2, Z2 sums (3, nb W) and the pair sums (5,) with X = U, H = 0."""
         acc = self.view("acc").reshape(5, -1)
         U = self._matrix("U")
         pairs = np.zeros(5)

@@ -1,4 +1,4 @@
-"""One all-pairs ADMM run on a :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM`: the iteration
+"""One all-pairs ADMM run on an engine's state (:class:`~warp_regdist.solvers.all_pairs.engine.PairsEngine`): the iteration
 loop, the seven residuals, the change and steepness tests of docs/method.md section 8, checkpoints and
 the result."""
 
@@ -45,7 +45,8 @@ def final_result(saved, memory, checkpoint):
 
 
 class PairsRun:
-    """The ADMM iterations of :func:`all_pairs` on a :class:`SymmetricADMM`, with checkpoints.
+    """The ADMM iterations of :func:`all_pairs` on an engine's state (a
+    :class:`~warp_regdist.solvers.all_pairs.engine.PairsEngine`), with checkpoints.
 
     A checkpoint is the state at the top of an iteration: the state arrays, the penalties that
     formed the last iterate, the last element and consensus sums (the residuals of that
@@ -73,11 +74,7 @@ class PairsRun:
         self.warned_stall = False
 
     def restore(self, saved):
-        st = self.state
-        for name in STATE_ROWS + ("v",):
-            st.put(name, saved[name])
-        st.clear_diagonal("X")  # the X-step keeps X[j, j] where it is: at 0, whatever the file holds
-        st.rho_v = float(saved["rho_v"])
+        self.state.load(saved, STATE_ROWS + ("v",))
         self.start = int(saved["iteration"])
         if self.start > 0:
             self.last_penalties = tuple(float(x) for x in saved["penalties"])
@@ -100,10 +97,7 @@ class PairsRun:
         and the divergences recomputed from v. The penalty schedule starts again (continuing it from
         the carried penalty took more iterations than a cold start: docs/design/all-pairs.md)."""
         st = self.state
-        for name in ("X", "U", "H", "v"):
-            st.put(name, saved[name])
-        st.clear_diagonal("X")  # as in restore
-        st.rho_v = float(saved["rho_v"])
+        st.load(saved, ("X", "U", "H", "v"))
         st.divergences_from_element_state()
         self.change_test.reset(st.view("U").reshape(-1, 1))
 
@@ -204,9 +198,9 @@ class PairsRun:
         st, tol = self.state, self.options
         for j in range(it, it + count):
             atol = cg_tolerance(tol.cg_fraction, np.sqrt(self.dy2) + 0.5 * np.linalg.norm(st.setup.vertex_volumes))
-            self.cg_total += st.x_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
+            self.cg_total += st.linear_and_element_steps(atol, tol.cg_rtol, tol.cg_max_iterations)
             self.last_penalties = st.penalties
-            self.cols, self.pairs = st.consensus()
+            self.cols, self.pairs = st.coupling_step()
             self.top(j + 1)
 
     def iterate(self, t0):

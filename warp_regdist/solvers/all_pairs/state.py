@@ -248,6 +248,14 @@ class PairsState:
     def put(self, name, values):
         self.arrays[name].assign(values)
 
+    def load(self, saved, names):
+        """State arrays ``names`` and ``rho_v`` from a checkpoint's ``saved`` arrays; X[j, j] at 0 whatever the
+        file holds (the X-step keeps it there)."""
+        for name in names:
+            self.put(name, saved[name])
+        self.clear_diagonal("X")
+        self.rho_v = float(saved["rho_v"])
+
     def clear_diagonal(self, name):
         """State array ``name``[j, j] = 0 for every vertex j (in place on the CPU)."""
         j = np.arange(self.n)
@@ -325,7 +333,7 @@ class SymmetricADMM(PairsState):
         acc = self.arrays["acc"].numpy().reshape(5, -1)
         return acc[S2].astype(np.float64), acc[DY2].astype(np.float64)
 
-    def x_and_element_steps(self, atol, rtol, max_iterations):
+    def linear_and_element_steps(self, atol, rtol, max_iterations):
         """X-step (PCG) then z/y-step of every part; returns the largest PCG iteration count."""
         self.arrays["acc"].zero_()
         rho = self.penalties[0]
@@ -333,7 +341,7 @@ class SymmetricADMM(PairsState):
         self.rho_v = rho
         return max(its)
 
-    def consensus(self):
+    def coupling_step(self):
         """U/H-step; returns (per-column R2, G2, Z2 sums (3, nb W) of the element step, pair sums (5,))."""
         self.arrays["acc_pairs"].zero_()
         self._each("consensus_step", self.penalties[1])

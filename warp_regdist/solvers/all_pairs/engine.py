@@ -1,0 +1,100 @@
+"""What :class:`~warp_regdist.solvers.all_pairs.run.PairsRun` needs of an all-pairs engine's state: the
+:class:`PairsEngine` Protocol that :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM` (the
+consensus engine) and :class:`~warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisADMM` implement.
+
+One iteration is ``linear_and_element_steps`` (the consensus engine's X-step PCG, or the eigenbasis
+engine's exact U-step, then the fused z/y element step) and ``coupling_step`` (the consensus engine's
+U/H-step; nothing in the eigenbasis engine, whose U is symmetric by construction), at the penalties of
+``set_penalties``; the run reads the residuals' sums they return and the state arrays by name.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+from collections.abc import Mapping
+
+import numpy as np
+
+__all__ = ["PairsEngine"]
+
+
+@runtime_checkable
+class PairsEngine(Protocol):
+    """The state of one all-pairs run on an engine.
+
+    Attributes
+    ----------
+    engine : str
+        "consensus" or "eigenbasis".
+    n, m : int
+        Vertices and elements.
+    A, L : float
+        Total area and its square root (the length scale).
+    column_area : (nb W,) ndarray
+        A_V per column, 0 on the padding lanes.
+    setup : object
+        The run's setup (``vertex_volumes``, lane counts ``nb`` and ``W``, the constraints).
+    penalties : tuple of float
+        (rho, rho2) of the last ``set_penalties``.
+    rho_v : float
+        The penalty that formed the element state v (a checkpoint records it).
+    change_rate_cap : float
+        The engine's q_max of the change test.
+    """
+
+    engine: str
+    n: int
+    m: int
+    A: float
+    L: float
+    column_area: np.ndarray
+    setup: object
+    penalties: tuple
+    rho_v: float
+    change_rate_cap: float
+
+    def set_penalties(self, rho: float, rho2: float) -> None:
+        """The penalties of the next iteration."""
+        ...
+
+    def right_hand_side(self) -> tuple:
+        """Prepare the linear step; (|D (Z - Z_old)|^2, |D Y|^2) per column (nb W,) for the dual residual."""
+        ...
+
+    def linear_and_element_steps(self, atol: np.ndarray, rtol: float, max_iterations: int) -> int:
+        """The linear step (PCG to ``atol`` per column, ``rtol``, ``max_iterations``, or an exact solve) and the
+        element step; the PCG iterations (0 without PCG)."""
+        ...
+
+    def coupling_step(self) -> tuple:
+        """The step that couples the columns and rows (or none); (per-column R2, G2, Z2 sums (3, nb W), pair
+        sums (5,)) of this iteration."""
+        ...
+
+    def load(self, saved: Mapping, names: tuple) -> None:
+        """State arrays ``names`` and ``rho_v`` from a checkpoint's ``saved`` arrays (X's diagonal at 0)."""
+        ...
+
+    def view(self, name: str) -> np.ndarray:
+        """State array ``name`` as numpy (lanes last)."""
+        ...
+
+    def put(self, name: str, values: np.ndarray) -> None:
+        """Write state array ``name``."""
+        ...
+
+    def distance(self) -> np.ndarray:
+        """max(U, 0) (n, n) float64."""
+        ...
+
+    def gradient_excess(self, top: float) -> float:
+        """U's steepness beyond its constraint relative to ``top``."""
+        ...
+
+    def divergences_from_element_state(self) -> None:
+        """D Z and D Y recomputed from v (after a warm start)."""
+        ...
+
+    def close(self) -> None:
+        """End the worker processes, if any."""
+        ...
