@@ -56,7 +56,7 @@ def parse_device(device):
     are dropped; anything else is written back.
     """
     with _native_stderr() as native:
-        _init_warp()
+        wp.init()  # a no-op once Warp is initialized
         try:
             found = wp.get_device(device)
         except Exception:
@@ -72,13 +72,6 @@ def parse_device(device):
     if kept:
         os.write(2, kept)
     return found
-
-
-def _init_warp():
-    """``wp.init()``; a no-op once Warp is initialized."""
-    context = getattr(getattr(wp, "_src", None), "context", None)  # Warp's runtime; absent: assume not started
-    if getattr(context, "runtime", None) is None:
-        wp.init()
 
 
 class _native_stderr:
