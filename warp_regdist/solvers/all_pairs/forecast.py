@@ -26,7 +26,7 @@ MIN_CAP = 3000
 
 STALL_CHECKS = 8
 """The fewest checks (change windows) without a new low of the change still to come after which a run is
-said not to be settling (half of its checks when that is more)."""
+said not to be settling (and the low must lie in the first third of its iterations)."""
 
 
 def typical_iterations(n, accuracy):
@@ -90,8 +90,8 @@ class ChangeTrend:
 
     ``add(k, change)`` after every change test (change inf before the test has a rate). The change
     goes up and down from window to window (on a 298-vertex cat at accuracy 0.01 between 0.014 and 0.042
-    over the 12 checks before it fell to 0.005 and stopped), so ``stalled()`` looks at many checks:
-    whether the last max(STALL_CHECKS, half of all) brought no new low.
+    over the 12 checks before it fell to 0.005 and stopped), so ``stalled()`` looks at the whole run:
+    whether its lowest change came at most a third of the way into it, at least STALL_CHECKS checks ago.
     """
 
     def __init__(self):
@@ -103,10 +103,10 @@ class ChangeTrend:
             self.changes.append(float(change))
 
     def stalled(self):
-        recent = max(STALL_CHECKS, len(self.changes) // 2)
-        if len(self.changes) <= recent:
+        if len(self.changes) <= STALL_CHECKS:
             return False
-        return min(self.changes[-recent:]) > min(self.changes[:-recent])
+        low = int(np.argmin(self.changes))
+        return len(self.changes) - 1 - low >= STALL_CHECKS and 3 * self.iterations[low] <= self.iterations[-1]
 
     def lowest(self):
         """(iteration, change) of the lowest change so far."""
