@@ -20,7 +20,7 @@ from typing import ClassVar
 
 import numpy as np
 
-__all__ = ["SolverOptions", "AllPairsOptions", "DEFAULT_ACCURACY", "ENGINE_PENALTIES"]
+__all__ = ["SolverOptions", "AllPairsOptions", "DEFAULT_ACCURACY"]
 
 DEFAULT_ACCURACY = 0.005
 """The max error, in units of the max distance, that the all-pairs residual tolerances were chosen for."""
@@ -32,9 +32,6 @@ _CHANGE_SHARE = 0.7
 
 _EXCESS_SHARE = 1.0
 """All pairs: eps_excess = accuracy."""
-
-ENGINE_PENALTIES = {"consensus": (0.5, 8.0, 30.0), "eigenbasis": (2.0, 32.0, 100.0)}
-"""All pairs: each engine's (rho0, rho_max, rho_doubling), where the options leave them None."""
 
 
 def _check_number(name, value, low=0.0, strict=False, infinite=False, integer=False):
@@ -203,7 +200,7 @@ class AllPairsOptions(_Options):
         Over-relaxation of all three steps.
     rho0, rho_max, rho_doubling : float or None
         rho_k = L min(rho_max, rho0 2^(k / rho_doubling)); None: the engine's own,
-        ``ENGINE_PENALTIES`` (the eigenbasis engine's U-step is exact at any penalty and converges
+        ``ENGINES[engine].penalties`` of :mod:`warp_regdist.solvers.all_pairs.engine` (the eigenbasis engine's U-step is exact at any penalty and converges
         sooner on a schedule four times higher and three times slower).
     rho2_factor : float
         The consensus penalty rho2 = rho2_factor rho^2 / (L A).
@@ -254,8 +251,10 @@ class AllPairsOptions(_Options):
 
     def for_engine(self, engine):
         """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties
-        (``ENGINE_PENALTIES``) in the penalty fields left None."""
-        defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINE_PENALTIES[engine]))
+        (``ENGINES[engine].penalties``) in the penalty fields left None."""
+        from .solvers.all_pairs.engine import ENGINES
+
+        defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINES[engine].penalties))
         return self.replace(engine=engine, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
     _POSITIVE: ClassVar[tuple[str, ...]] = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")

@@ -1,6 +1,8 @@
-"""What :class:`~warp_regdist.solvers.all_pairs.run.PairsRun` needs of an all-pairs engine's state: the
-:class:`PairsEngine` Protocol that :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM` (the
-consensus engine) and :class:`~warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisADMM` implement.
+"""The all-pairs engines: what the package knows of each before a run (``ENGINES``: its penalties, its
+memory model; :func:`choose_engine`: the size rule of "auto"), and what
+:class:`~warp_regdist.solvers.all_pairs.run.PairsRun` needs of an engine's state: the :class:`PairsEngine`
+Protocol that :class:`~warp_regdist.solvers.all_pairs.state.SymmetricADMM` (the consensus engine) and
+:class:`~warp_regdist.solvers.all_pairs.eigenbasis.EigenbasisADMM` implement.
 
 One iteration is ``linear_and_element_steps`` (the consensus engine's X-step PCG, or the eigenbasis
 engine's exact U-step, then the fused z/y element step) and ``coupling_step`` (the consensus engine's
@@ -10,12 +12,54 @@ U/H-step; nothing in the eigenbasis engine, whose U is symmetric by construction
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable, Mapping
 from typing import Protocol, runtime_checkable
-from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["PairsEngine"]
+__all__ = ["EngineKind", "ENGINES", "choose_engine", "PairsEngine"]
+
+
+@dataclasses.dataclass(frozen=True)
+class EngineKind:
+    """One engine of ``ENGINES``.
+
+    Attributes
+    ----------
+    penalties : (rho0, rho_max, rho_doubling)
+        Its penalty schedule (units of L) where the options leave those fields None.
+    array_bytes : callable
+        ``array_bytes(n, m, itemsize, cols)`` -> (device bytes, host bytes beyond the result and the
+        change test's copies) of its state, cols = n padded to whole lanes
+        (:func:`~warp_regdist.solvers.all_pairs.memory.memory_estimate` adds the rest).
+    """
+
+    penalties: tuple[float, float, float]
+    array_bytes: Callable[[int, int, int, int], tuple[int, int]]
+
+
+ENGINES = {
+    # X, U, H, DZ, rhs, D Z, D Y (7), the PCG's r, z, p, q (4) and mask, the multigrid levels (counted as n),
+    # the z/y state (3 m columns' worth)
+    "consensus": EngineKind((0.5, 8.0, 30.0), lambda n, m, size, cols: (size * cols * (13 * n + 3 * m), 0)),
+    # U, H, DZ and the divergences (5) and the z/y state; on the host the U-step's Phi, 1 / (lam_p + lam_q)
+    # and four temporaries, its right-hand side, a temporary and A_V A_V^T, its bordered LU (float64) and its
+    # result in lanes
+    "eigenbasis": EngineKind((2.0, 32.0, 100.0), lambda n, m, size, cols: (
+        size * cols * (5 * n + 3 * m), size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols)),
+}
+"""The engines by name. The eigenbasis engine's U-step is exact at any penalty and converges sooner on a
+schedule four times higher and three times slower (docs/design/all-pairs.md)."""
+
+
+def choose_engine(engine, n, on_cpu, eigenbasis_max_vertices):
+    """The engine that option ``engine`` takes on an n-vertex mesh: itself, or for "auto" "eigenbasis" on the
+    CPU up to ``eigenbasis_max_vertices`` vertices and "consensus" otherwise (the eigenbasis U-step costs
+    O(n^3) an iteration on the host, the consensus engine's O(n^2))."""
+    if engine != "auto":
+        return engine
+    return "eigenbasis" if on_cpu and n <= eigenbasis_max_vertices else "consensus"
 
 
 @runtime_checkable

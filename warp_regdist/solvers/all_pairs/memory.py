@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 
 from ...kernels.lanes import SCALARS, lane_width
+from .engine import ENGINES
 
 __all__ = ["memory_estimate", "check_memory", "available_memory"]
 
@@ -27,27 +28,17 @@ def available_memory(device):
 
 
 def memory_estimate(n, m, dtype="float64", device="cpu", engine="consensus"):
-    """Bytes needed by :func:`all_pairs` for n vertices and m triangles with ``engine``.
-
-    The consensus engine: device arrays of n x (n padded to the lane width W) numbers each: X, U, H, DZ, rhs and
-    the scattered divergences D Z, D Y (7), the PCG's r, z, p, q (4) and mask (1), the multigrid
-    levels (~0.15 n per column, counted as n), the combined z/y state (3 m columns' worth); plus on the
-    host the float64 (n, n) result, and in the solver's precision the U of the last change test
-    and the change test's difference (and, on a GPU, the copy of one state array at a time to
-    the host; checkpoints write the state from views, not copies, on the CPU). The eigenbasis engine:
-    U, H, DZ and the divergences (5) and the z/y state on the device, the same host arrays and
-    the U-step's Phi, 1 / (lam_p + lam_q) and four (n, n) temporaries in ``dtype``, the LU factors of its
-    bordered system (float64), its right-hand side, one temporary and A_V A_V^T in ``dtype``, and its
-    result in lanes.
+    """(device bytes, host bytes) needed by :func:`all_pairs` for n vertices and m triangles with ``engine``:
+    the engine's state (``ENGINES[engine].array_bytes``, in n x (n padded to the lane width) numbers), and on
+    the host the float64 (n, n) result, in the solver's precision the U of the last change test and the
+    change test's difference (and, on a GPU, the copy of one state array at a time to the host;
+    checkpoints write the state from views, not copies, on the CPU).
     """
     W = lane_width(SCALARS[dtype], n)
     cols = -(-n // W) * W
     size = np.dtype(dtype).itemsize
-    host_bytes = 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2)
-    if engine == "eigenbasis":
-        u_step = size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols
-        return size * cols * (5 * n + 3 * m), host_bytes + u_step
-    return size * cols * (13 * n + 3 * m), host_bytes
+    device_bytes, engine_host = ENGINES[engine].array_bytes(n, m, size, cols)
+    return device_bytes, 8 * n * n + size * n * cols * (3 if wp.get_device(device).is_cuda else 2) + engine_host
 
 
 def check_memory(n, m, dtype, dev, engine="consensus"):

@@ -64,6 +64,7 @@ from ..common.progress import Progress
 from .checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
 from .eigenbasis import EigenbasisADMM, EigenbasisUStep
+from .engine import choose_engine
 from .forecast import RunForecast, typical_iterations, with_cap
 from .run import PairsRun, final_result
 from .state import SymmetricADMM, middle_matrix
@@ -162,10 +163,7 @@ class AllPairsSolver:
     def engine(self, options):
         """The engine that ``options`` choose on this mesh and device: their ``engine``, or for "auto"
         "eigenbasis" on the CPU up to ``options.eigenbasis_max_vertices`` vertices and "consensus" otherwise."""
-        if options.engine != "auto":
-            return options.engine
-        small = self.mesh.n_vertices <= options.eigenbasis_max_vertices
-        return "eigenbasis" if self.device.is_cpu and small else "consensus"
+        return choose_engine(options.engine, self.mesh.n_vertices, self.device.is_cpu, options.eigenbasis_max_vertices)
 
     def forecast(self, accuracy=None, **options):
         """What :meth:`solve` with the same ``accuracy`` and ``options`` will take, before it starts: a
