@@ -26,9 +26,8 @@ DEFAULT_ACCURACY = 0.005
 """The max error, in units of the max distance, that the all-pairs residual tolerances were chosen for."""
 
 _CHANGE_SHARE = 0.7
-"""All pairs: eps_change = 0.7 x accuracy (with the change estimate's 1 / k term, every run it stopped on
-12 cases of 42-1,000 vertices against exact minimizers and long runs was within the accuracy, at most
-0.86 of it; docs/design/all-pairs.md)."""
+"""All pairs: eps_change = 0.7 x accuracy (chosen against exact minimizers and long runs:
+docs/design/all-pairs.md)."""
 
 _EXCESS_SHARE = 1.0
 """All pairs: eps_excess = accuracy."""

@@ -8,9 +8,8 @@ free unknowns (K restricted to them is positive definite). Warm starts come for 
 The preconditioner is an operator z = M r with its own launches (the PCG masks z):
 :class:`~warp_regdist.linalg.multigrid.MultigridPreconditioner` (default), one smoothed-aggregation
 V-cycle, which reads about 2.7 nnz(K) matrix entries on the finest level, so an iteration
-costs 2-3 Jacobi iterations, but 18, 21 and 33 iterations reach 1e-6 on 5k, 100k and 1M
-vertices; :class:`JacobiPreconditioner`, z = D^-1 r, needs 250, 800 and 3000 there
-(iterations grow like sqrt(n)).
+costs 2-3 Jacobi iterations, but their count barely grows with n; :class:`JacobiPreconditioner`,
+z = D^-1 r, needs iterations that grow like sqrt(n) (docs/performance.md gives both).
 
 The stopping test runs on the device (kernels/pcg.py): per-lane converged flags, the
 iteration counter and a ``running`` flag, so one CG iteration is a fixed sequence of

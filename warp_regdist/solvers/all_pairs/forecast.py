@@ -89,9 +89,9 @@ class ChangeTrend:
     """The change still to come at each check of a run, and whether the run is settling.
 
     ``add(k, change)`` after every change test (change inf before the test has a rate). The change
-    goes up and down from window to window (on a 298-vertex cat at accuracy 0.01 between 0.014 and 0.042
-    over the 12 checks before it fell to 0.005 and stopped), so ``stalled()`` looks at the whole run:
-    whether its lowest change came at most a third of the way into it, at least STALL_CHECKS checks ago.
+    goes up and down from window to window for many windows before a run stops
+    (docs/design/all-pairs.md), so ``stalled()`` looks at the whole run: whether its lowest change came
+    at most a third of the way into it, at least STALL_CHECKS checks ago.
     """
 
     def __init__(self):

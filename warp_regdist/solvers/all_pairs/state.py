@@ -276,8 +276,7 @@ class SymmetricADMM(PairsState):
     """
 
     engine = "consensus"
-    # 40 windows: its PCG U-steps creep on obtuse meshes (like k^-0.4 on a decimated rocker arm), where
-    # 20 stopped 1.3% from the minimizer at accuracy 0.01 (docs/design/all-pairs.md)
+    # 40 windows: its PCG U-steps creep more slowly than 1 / k on obtuse meshes (docs/design/all-pairs.md)
     change_rate_cap = 0.975
 
     def __init__(self, ops, alpha_hat, device, dtype, options, penalty_mid, workers, constraints, auto_workers=False,

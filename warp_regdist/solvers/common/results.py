@@ -136,9 +136,8 @@ class DistanceResult(OptimizeResult):
     def polish(self):
         """This result with ``distance`` replaced by the minimizer of the barrier-smoothed problem
         (docs/method.md section 10), found by Newton's method from it: within about 1e-4 of the max
-        distance of the exact minimizer, where the ADMM stops 0.1-0.7% away, for about the solve's
-        time again with MKL PARDISO (``options.gradient_factorization``), 2.5-14 times it with
-        SuperLU. ``polish_change`` (float or (k,)) is how far it moved, in units of the max
+        distance of the exact minimizer, for a sparse factorization per Newton step (MKL PARDISO or
+        SuperLU, ``options.gradient_factorization``; docs/performance.md gives its cost). ``polish_change`` (float or (k,)) is how far it moved, in units of the max
         distance: the ADMM's own error, to within the smoothing's. ``error_estimate`` is dropped;
         ``seconds`` adds the polish's time.
         Vertex and point sources and the Dirichlet regularizer only, like :meth:`vjp`.
@@ -184,9 +183,8 @@ class AllPairsResult(OptimizeResult):
     change, error_estimate : float
         The change of U still to come estimated at the last change test, in units of max U
         (inf before the third test; see ``eps_change``): the run's estimate of max |U - U*| / max U,
-        at the slower of the last two windows' rate and 1 / k. An estimate, not a bound: on 12 cases
-        of 42-1,000 vertices (exact minimizers and long runs) the true error at a stop was at most
-        1.24 times it (docs/design/all-pairs.md).
+        at the slower of the last two windows' rate and 1 / k. An estimate, not a bound
+        (docs/design/all-pairs.md compares it with the true error).
     gradient_excess : float
         How far ``distance`` breaks |grad U_j| <= 1: max over elements e and columns j of
         (|grad U_j|_e - 1)_+ diam(e) / max U (``eps_excess``).
