@@ -11,6 +11,7 @@ import hashlib
 import warnings
 
 import numpy as np
+from numpy.typing import ArrayLike
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
@@ -57,7 +58,7 @@ class Mesh:
     (:func:`~warp_regdist.repair_mesh`, ``load_mesh(path, repair=True)``): values on this mesh read back
     in the input's numbering as ``u[mesh.input_index]``; None: the numbering is the input's."""
 
-    def __init__(self, vertices, elements):
+    def __init__(self, vertices: ArrayLike, elements: ArrayLike) -> None:
         V = np.asarray(vertices)
         T = np.asarray(elements)
         if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] == 0:

@@ -34,7 +34,7 @@ def data_path(name):
     return os.path.join(folder, name)
 
 
-def load_mesh(path, repair=False):
+def load_mesh(path: str | os.PathLike, repair: bool = False) -> Mesh:
     """Read a triangle or tetrahedral mesh file, keeping the file's vertex order.
 
     Triangle surfaces: OBJ (:func:`_read_obj`), OFF, PLY (faces or triangle strips), STL (trimesh);

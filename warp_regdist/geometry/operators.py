@@ -18,6 +18,8 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
+from .mesh import Mesh
+
 __all__ = ["Operators", "build_operators", "assemble_operators", "element_gradients", "element_diameters",
            "largest_angles", "largest_basis_angles", "choose_triangulation"]
 
@@ -163,7 +165,7 @@ def choose_triangulation(mesh, regularizer="dirichlet", triangulation=None):
     return triangulation
 
 
-def build_operators(mesh, triangulation="mesh"):
+def build_operators(mesh: Mesh, triangulation: str = "mesh") -> Operators:
     """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`.
 
     ``triangulation``: "mesh" builds them on the mesh's own elements; "intrinsic" on the intrinsic

@@ -15,10 +15,14 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import os
 import time
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import distributed
 from ..arguments import check_weight, parse_device, parse_workers
@@ -35,8 +39,11 @@ from ..solvers.single_source.solver import DistanceSolver
 __all__ = ["distance_matrix"]
 
 
-def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=None, dtype="float64",
-                    chunk=64, workers=None, client=None, out=None, progress=None, points=None, options=None):
+def distance_matrix(mesh: Mesh, alpha_hat: float = 0.05, sources: ArrayLike | None = None, symmetrize: bool = True,
+                    device: str | None = None, dtype: str = "float64", chunk: int = 64, workers: int | None = None,
+                    client: object = None, out: str | os.PathLike | None = None,
+                    progress: Callable[[int, int, float], object] | None = None, points: ArrayLike | None = None,
+                    options: SolverOptions | None = None) -> np.ndarray:
     """Single-source distances from many vertices, stacked as rows.
 
     Parameters
@@ -117,7 +124,7 @@ def distance_matrix(mesh, alpha_hat=0.05, sources=None, symmetrize=True, device=
     if options is not None and not isinstance(options, SolverOptions):
         raise ValueError(f"expected options as a SolverOptions or None, got {type(options).__name__}")
     options = SolverOptions() if options is None else options
-    problem = dict(alpha_hat=alpha_hat, device=device, dtype=dtype, options=options)
+    problem: dict[str, Any] = dict(alpha_hat=alpha_hat, device=device, dtype=dtype, options=options)
     if client is None:
         parse_device(device)                   # refused before the output is created
     if client is not None:

@@ -43,6 +43,7 @@ preconditioner is built once.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 import functools
 import math
 import os
@@ -61,6 +62,7 @@ from ...kernels.lanes import SCALARS
 from ...options import AllPairsOptions
 from ..common.admm import PenaltySchedule
 from ..common.progress import Progress
+from ..common.results import AllPairsResult
 from .checkpoint import (Checkpoint, check_no_progress, checkpoint_bytes, checkpoint_name, checkpoint_room,
                                    problem_fingerprint, read_checkpoint)
 from .eigenbasis import EigenbasisADMM, EigenbasisUStep
@@ -128,8 +130,9 @@ class AllPairsSolver:
     >>> U = solver.solve(accuracy=0.01, checkpoint="run.npz").distance
     """
 
-    def __init__(self, mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None,
-                 triangulation=None, source_triangles=None):
+    def __init__(self, mesh: Mesh, alpha_hat: float = 0.03, device: str | None = None, dtype: str = "float64",
+                 workers: int | None = None, options: AllPairsOptions | None = None, triangulation: str | None = None,
+                 source_triangles: str | None = None) -> None:
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         if mesh.element_dim != 2:
@@ -160,12 +163,12 @@ class AllPairsSolver:
         self.memory_bytes = sum(memory_estimate(mesh.n_vertices, mesh.n_elements, dtype, self.device,
                                                 self.engine(self.options)))
 
-    def engine(self, options):
+    def engine(self, options: AllPairsOptions) -> str:
         """The engine that ``options`` choose on this mesh and device: their ``engine``, or for "auto"
         "eigenbasis" on the CPU up to ``options.eigenbasis_max_vertices`` vertices and "consensus" otherwise."""
         return choose_engine(options.engine, self.mesh.n_vertices, self.device.is_cpu, options.eigenbasis_max_vertices)
 
-    def forecast(self, accuracy=None, **options):
+    def forecast(self, accuracy: float | None = None, **options) -> RunForecast:
         """What :meth:`solve` with the same ``accuracy`` and ``options`` will take, before it starts: a
         :class:`~warp_regdist.solvers.all_pairs.forecast.RunForecast` (engine, memory, typical iterations
         at this size and accuracy, the cap)."""
@@ -188,8 +191,10 @@ class AllPairsSolver:
         """The eigenbasis engine's exact U-step (set up on first use, shared by every solve)."""
         return EigenbasisUStep(self.operators.stiffness, self.operators.vertex_volumes, self.dtype)
 
-    def solve(self, accuracy=None, callback=None, checkpoint=None, checkpoint_seconds=300.0, resume=None,
-              initial=None, restart=False, **options):
+    def solve(self, accuracy: float | None = None, callback: Callable[[Progress], object] | None = None,
+              checkpoint: str | os.PathLike | None = None, checkpoint_seconds: float = 300.0,
+              resume: str | os.PathLike | None = None, initial: str | os.PathLike | None = None,
+              restart: bool = False, **options) -> AllPairsResult:
         """Run the ADMM from zeros (or ``resume`` / ``initial``); returns an :class:`~warp_regdist.AllPairsResult`.
 
         Parameters
@@ -290,7 +295,7 @@ class AllPairsSolver:
                 return self._flag_steep(final_result(saved, memory, checkpoint), run_options)
             if saved is not None and int(saved["iteration"]) >= run_options.max_iterations:
                 raise ValueError(f"expected max_iterations above {int(saved['iteration'])}, the iteration of the "
-                                 f"checkpoint resumed ({os.fspath(resume)!r}), got {run_options.max_iterations}: "
+                                 f"checkpoint resumed ({resume!r}), got {run_options.max_iterations}: "
                                  "the run would stop where it is")
             if callback is not None:  # the arguments hold: the engine's setup starts
                 callback(Progress(0 if saved is None else int(saved["iteration"]), time.perf_counter() - t0, (),
@@ -306,7 +311,8 @@ class AllPairsSolver:
                            callback, saving, self._excess)
             if saved is not None:
                 run.restore(saved)
-                if checkpoint is not None and os.path.exists(checkpoint) and os.path.samefile(checkpoint, resume):
+                if saving is not None and resume is not None and os.path.exists(saving.path) \
+                        and os.path.samefile(saving.path, resume):
                     saving.saved_at = run.start
             if start is not None:
                 run.warm_start(start)
@@ -337,9 +343,12 @@ class AllPairsSolver:
         return res
 
 
-def all_pairs(mesh, alpha_hat=0.03, device=None, dtype="float64", workers=None, options=None, accuracy=None,
-              callback=None, checkpoint=None, checkpoint_seconds=300.0, resume=None, initial=None, restart=False,
-              triangulation=None, source_triangles=None, **overrides):
+def all_pairs(mesh: Mesh, alpha_hat: float = 0.03, device: str | None = None, dtype: str = "float64",
+              workers: int | None = None, options: AllPairsOptions | None = None, accuracy: float | None = None,
+              callback: Callable[[Progress], object] | None = None, checkpoint: str | os.PathLike | None = None,
+              checkpoint_seconds: float = 300.0, resume: str | os.PathLike | None = None,
+              initial: str | os.PathLike | None = None, restart: bool = False, triangulation: str | None = None,
+              source_triangles: str | None = None, **overrides) -> AllPairsResult:
     """Symmetric all-pairs regularized distance matrix (Algorithm 2) on a connected triangle mesh:
     ``AllPairsSolver(mesh, alpha_hat, device, dtype, workers, options, triangulation, source_triangles).solve(accuracy,
     ...)`` with the

@@ -17,11 +17,14 @@ the multigrid preconditioner of W_D serves all three.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import sys
 import time
 import warnings
 
 import numpy as np
+from numpy.typing import ArrayLike
 import warp as wp
 
 from ...arguments import check_weight, parse_device, parse_workers
@@ -38,6 +41,7 @@ from ..common.device_mesh import DeviceMesh
 from ...linalg.multigrid import Hierarchy, smoothed_aggregation
 from ...linalg.pcg import BatchedPCG
 from ..common.processes import WorkerPool, check_workers, processes_available, watch
+from ..common.progress import Progress
 from ..common.results import DistanceResult
 from .batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
@@ -113,9 +117,11 @@ class DistanceSolver:
     ``converged=False``); a second Ctrl-C raises KeyboardInterrupt.
     """
 
-    def __init__(self, mesh, alpha_hat=0.05, regularizer="dirichlet", beta_hat=None, vector_field=None,
-                 device=None, dtype="float64", workers=None, hierarchy=None, options=None, triangulation=None,
-                 source_triangles=None):
+    def __init__(self, mesh: Mesh, alpha_hat: float = 0.05, regularizer: str = "dirichlet",
+                 beta_hat: float | None = None, vector_field: ArrayLike | None = None, device: str | None = None,
+                 dtype: str = "float64", workers: int | None = None, hierarchy: Hierarchy | None = None,
+                 options: SolverOptions | None = None, triangulation: str | None = None,
+                 source_triangles: str | None = None) -> None:
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -148,7 +154,7 @@ class DistanceSolver:
             raise ValueError(f"expected hierarchy as a multigrid Hierarchy of {mesh.n_vertices} unknowns, got "
                              f"{hierarchy.sizes[0] if isinstance(hierarchy, Hierarchy) else type(hierarchy).__name__}")
         self.hierarchy = hierarchy
-        self._workspaces = {}
+        self._workspaces: dict = {}
         self._refined = None   # (key, the DistanceSolver of the latest refined mesh of points and curves)
 
     def smoothing_problem(self, options=None):
@@ -190,8 +196,9 @@ class DistanceSolver:
                              f"{penalty!r} and {np.count_nonzero(~np.isfinite(y))} non-finite duals")
         return u, y, np.broadcast_to(penalty, (k,))
 
-    def solve(self, sources=None, verbose=False, initial=None, points=None, curve=None, closed=False, callback=None,
-              **options):
+    def solve(self, sources: ArrayLike | None = None, verbose: bool = False, initial: DistanceResult | None = None,
+              points: ArrayLike | None = None, curve: ArrayLike | None = None, closed: bool = False,
+              callback: Callable[[Progress], object] | None = None, **options) -> DistanceResult:
         """Distance from one source set; see :class:`DistanceResult`.
 
         ``sources``: vertex indices. ``points``: surface points [(face, (b0, b1, b2)), ...] (e.g. from
@@ -229,8 +236,11 @@ class DistanceSolver:
         res["duals"] = res["duals"][:, :, 0]
         return res
 
-    def solve_many(self, source_sets=None, verbose=False, initial=None, keep_duals=False, points=None, curves=None,
-                   closed=False, callback=None, **options):
+    def solve_many(self, source_sets: Sequence[ArrayLike] | None = None, verbose: bool = False,
+                   initial: DistanceResult | None = None, keep_duals: bool = False,
+                   points: Sequence[ArrayLike] | None = None, curves: Sequence[ArrayLike] | None = None,
+                   closed: bool = False, callback: Callable[[Progress], object] | None = None,
+                   **options) -> DistanceResult:
         """Distances from k source sets as batched ADMMs (on the CPU ``cpu_blocks`` lane blocks of up to 8
         (float64) or 16 (float32) columns at a time, on CUDA all at once): ``distance`` is (n, k).
 
