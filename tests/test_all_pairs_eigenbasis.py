@@ -5,6 +5,7 @@ full problem, tests/all_pairs_reference.py), the U-step's own equation with dens
 and the diagonal's response summed term by term over pairs of eigenvectors.
 """
 
+import functools
 import os
 import warnings
 
@@ -167,3 +168,34 @@ def test_interrupt_returns_the_iterate_and_resumes_to_the_uninterrupted_matrix(b
     assert np.array_equal(cut.distance, cut.distance.T) and cut.distance.max() > 0
     rest = _quiet(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=30, resume=path)
     assert not rest.interrupted and np.array_equal(rest.distance, whole.distance)
+
+
+
+def test_the_steepness_test_measures_the_matrix_returned(bumpy42, monkeypatch):
+    """The eigenbasis engine's U-step does not clip U at 0; the steepness test measures max(U, 0), what a
+    result returns, not the iterate: with entries below 0 beside the diagonal the two differ."""
+    from warp_regdist.solvers.all_pairs import run
+    from warp_regdist.solvers.common.stopping import gradient_excess
+
+    mesh, _ = bumpy42
+    seen = []
+    start = run.PairsRun.__init__
+
+    def keep(self, state, *args):
+        seen.append(state)
+        start(self, state, *args)
+
+    monkeypatch.setattr(run.PairsRun, "__init__", keep)
+    _quiet(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=60)
+    state = seen[0]
+    n, nb, W = state.n, state.setup.nb, state.setup.W
+    U = state.view("U").reshape(n, -1)[:, :n].astype(np.float64)
+    ring = np.unique(mesh.elements[(mesh.elements == 0).any(axis=1)])
+    U[0, ring[ring > 0]] = U[ring[ring > 0], 0] = -0.2 * U.max()
+    lanes = np.zeros((n, nb * W))
+    lanes[:, :n] = U
+    state.put("U", lanes.reshape(n, nb, W).astype(state.view("U").dtype))
+    excess = functools.partial(gradient_excess, state.setup.constraints, state.setup.operators.diameters)
+    clipped, raw = excess(np.maximum(U, 0)), excess(U)
+    assert state.gradient_excess(float(U.max())) == pytest.approx(clipped, rel=1e-5)
+    assert abs(clipped - raw) > 0.1 * max(clipped, raw)

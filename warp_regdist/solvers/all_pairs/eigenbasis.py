@@ -147,6 +147,7 @@ class EigenbasisADMM(PairsState):
                        for name, (shape, _) in setup.state_specs().items()
                        if name in ("U", "H", "DZ", "DZ_acc", "DY_acc", "v", "acc", "steep")}
         self.arrays["X"] = self.arrays["U"]
+        self.arrays["U_returned"] = wp.zeros_like(self.arrays["U"])   # max(U, 0), what the steepness test measures
         self.mesh = mesh = DeviceMesh(ops, sc, device, constraints.directions)
         col0 = 0 if constraints.active else -1
         k = all_pairs_kernels(sc, setup.W)
@@ -158,8 +159,8 @@ class EigenbasisADMM(PairsState):
                                          sc(setup.relaxation), a["DZ_acc"], a["DY_acc"], a["acc"], mesh.directions, col0,
                                          *span, m])
         self.steep = wp.launch(k.steepness, row_dim(m, span, nb), device=device, record_cmd=True,
-                               inputs=[mesh.elements, mesh.basis, mesh.diameters, a["U"], a["steep"], mesh.directions,
-                                       col0, *span, m])
+                               inputs=[mesh.elements, mesh.basis, mesh.diameters, a["U_returned"], a["steep"],
+                                       mesh.directions, col0, *span, m])
         self.rho_v = 1.0
         self.penalties = None
         self._areas = setup.vertex_volumes.astype(np.float64)
@@ -218,5 +219,8 @@ class EigenbasisADMM(PairsState):
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
     def _steepness(self):
+        """The steepness of max(U, 0), the matrix a result returns: this engine's U-step does not clip U at 0,
+        and clipping a slightly negative U steepens it (docs/design/all-pairs.md)."""
+        self.put("U_returned", np.maximum(self.view("U"), 0))
         self.steep.launch()
 

@@ -43,11 +43,12 @@ ENGINES = {
     # X, U, H, DZ, rhs, D Z, D Y (7), the PCG's r, z, p, q (4) and mask, the multigrid levels (counted as n),
     # the z/y state (3 m columns' worth)
     "consensus": EngineKind((0.5, 8.0, 30.0), lambda n, m, size, cols: (size * cols * (13 * n + 3 * m), 0)),
-    # U, H, DZ and the divergences (5) and the z/y state; on the host the U-step's Phi, 1 / (lam_p + lam_q)
+    # U, H, DZ, the divergences and max(U, 0) for the steepness test (6) and the z/y state; on the host the
+    # U-step's Phi, 1 / (lam_p + lam_q)
     # and four temporaries, its right-hand side, a temporary and A_V A_V^T, its bordered LU (float64) and its
     # result in lanes
     "eigenbasis": EngineKind((2.0, 32.0, 100.0), lambda n, m, size, cols: (
-        size * cols * (5 * n + 3 * m), size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols)),
+        size * cols * (6 * n + 3 * m), size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols)),
 }
 """The engines by name. The eigenbasis engine's U-step is exact at any penalty and converges sooner on a
 schedule four times higher and three times slower (docs/design/all-pairs.md)."""

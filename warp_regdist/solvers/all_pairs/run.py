@@ -90,7 +90,7 @@ class PairsRun:
                 self.last_excess = float(saved["excess"])
             elif self.options.eps_excess < math.inf:  # a checkpoint without it: measured on the host
                 n = self.state.n
-                self.last_excess = self.excess(self.change_test.snapshot.reshape(n, -1)[:, :n])
+                self.last_excess = self.excess(np.maximum(self.change_test.snapshot.reshape(n, -1)[:, :n], 0))
 
     def warm_start(self, saved):
         """Start from the iterate of checkpoint ``saved`` (another problem on this mesh): X, U, H, v
