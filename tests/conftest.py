@@ -44,3 +44,19 @@ def signal_after_iteration(monkeypatch, at, sig):
         return run_iterations(problem, start, max_iterations, check_every, poll)
 
     monkeypatch.setattr(solver_module, "run_iterations", signalling)
+
+
+@pytest.fixture
+def run_states(monkeypatch):
+    """The engine states of the all-pairs runs of a test, in order (wrapping ``PairsRun.__init__``)."""
+    from warp_regdist.solvers.all_pairs import run
+
+    seen = []
+    start = run.PairsRun.__init__
+
+    def keep(self, state, *args):
+        seen.append(state)
+        start(self, state, *args)
+
+    monkeypatch.setattr(run.PairsRun, "__init__", keep)
+    return seen

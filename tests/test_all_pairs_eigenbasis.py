@@ -171,23 +171,14 @@ def test_interrupt_returns_the_iterate_and_resumes_to_the_uninterrupted_matrix(b
 
 
 
-def test_the_steepness_test_measures_the_matrix_returned(bumpy42, monkeypatch):
+def test_the_steepness_test_measures_the_matrix_returned(bumpy42, run_states):
     """The eigenbasis engine's U-step does not clip U at 0; the steepness test measures max(U, 0), what a
     result returns, not the iterate: with entries below 0 beside the diagonal the two differ."""
-    from warp_regdist.solvers.all_pairs import run
     from warp_regdist.solvers.common.stopping import gradient_excess
 
     mesh, _ = bumpy42
-    seen = []
-    start = run.PairsRun.__init__
-
-    def keep(self, state, *args):
-        seen.append(state)
-        start(self, state, *args)
-
-    monkeypatch.setattr(run.PairsRun, "__init__", keep)
     _quiet(mesh, 0.05, device="cpu", engine="eigenbasis", max_iterations=60)
-    state = seen[0]
+    state = run_states[0]
     n, nb, W = state.n, state.setup.nb, state.setup.W
     U = state.view("U").reshape(n, -1)[:, :n].astype(np.float64)
     ring = np.unique(mesh.elements[(mesh.elements == 0).any(axis=1)])

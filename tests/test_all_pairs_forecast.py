@@ -86,19 +86,10 @@ def test_the_forecast_says_the_engine_memory_typical_iterations_and_cap_before_t
 
 
 @pytest.mark.parametrize("engine", ["eigenbasis", "consensus"])
-def test_both_engines_states_are_pairs_engines(engine, monkeypatch):
-    from warp_regdist.solvers.all_pairs import run
+def test_both_engines_states_are_pairs_engines(engine, run_states):
     from warp_regdist.solvers.all_pairs.engine import PairsEngine
 
-    seen = []
-    start = run.PairsRun.__init__
-
-    def keep(self, state, *args):
-        seen.append(state)
-        start(self, state, *args)
-
-    monkeypatch.setattr(run.PairsRun, "__init__", keep)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         wrd.all_pairs(wrd.Mesh(*meshes.icosphere(1, 1.0)), device="cpu", workers=1, engine=engine, max_iterations=2)
-    assert len(seen) == 1 and isinstance(seen[0], PairsEngine) and seen[0].engine == engine
+    assert len(run_states) == 1 and isinstance(run_states[0], PairsEngine) and run_states[0].engine == engine

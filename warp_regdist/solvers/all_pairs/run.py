@@ -71,7 +71,7 @@ class PairsRun:
         # the same on the host, for a checkpoint that does not record it
         self.excess, self.last_excess = excess, math.inf
         self.trend = ChangeTrend()   # this run's checks (a resumed run forecasts from its own)
-        self.warned_stall = False
+        self.settling, self.warned_stall = True, False   # ChangeTrend.stalled at the last check; warned once
 
     def restore(self, saved):
         self.state.load(saved, STATE_ROWS + ("v",))
@@ -164,7 +164,7 @@ class PairsRun:
             self._follow_trend(it)
         if self.callback is not None:
             self.callback(Progress(it, self._elapsed(), self.tests(), checked=due, memory_bytes=self.memory,
-                                   settling=not self.trend.stalled()))
+                                   settling=self.settling))
         if np.all(res <= eps) and self.change_test.settled[0] and self.last_excess <= tol.eps_excess:
             if self.checkpoint is not None:
                 self.save(it, self._elapsed(), dict(final=np.array(True), residuals=res, tolerance=eps))
@@ -175,9 +175,9 @@ class PairsRun:
         """Record the check of iteration ``it``; the first time the change still to come has reached no
         new low for many checks (ChangeTrend.stalled), a ConvergenceWarning that says so and what helps."""
         trend, tol = self.trend, self.options
-        was_stalled = trend.stalled()
         trend.add(it, float(self.change_test.change[0]))
-        if trend.stalled() and not was_stalled and not self.warned_stall:
+        was_settling, self.settling = self.settling, not trend.stalled()
+        if was_settling and not self.settling and not self.warned_stall:
             self.warned_stall = True
             low_at, low = trend.lowest()
             warnings.warn(f"all pairs is not settling: the change still to come has reached no new low since "
