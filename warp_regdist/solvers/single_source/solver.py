@@ -29,7 +29,7 @@ import warp as wp
 
 from ...arguments import check_weight, parse_device, parse_workers
 from ...errors import ConvergenceWarning, MeshWarning
-from ...geometry.mesh import Mesh
+from ...geometry.mesh import Mesh, boundary_vertices
 from ...geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
 from ...geometry.regularizers import build_regularizer
 from ...kernels.lanes import SCALARS, lane_type, lane_width
@@ -319,7 +319,7 @@ class DistanceSolver:
             warnings.warn(f"ADMM returned distances steeper than their constraint allows (max |grad u| relative to "
                           f"its bound {np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
-        _warn_below_zero(self.operators, res.distance, res.converged, source_sets)
+        _warn_below_zero(self.mesh, self.operators, res.distance, res.converged, source_sets)
         if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
@@ -486,11 +486,12 @@ NEGATIVE = 1e-6
 """A distance below -NEGATIVE x its column's max is reported (:func:`_warn_below_zero`)."""
 
 
-def _warn_below_zero(ops, u, converged, source_sets):
+def _warn_below_zero(mesh, ops, u, converged, source_sets):
     """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
     converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
     below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
-    be represented), which the intrinsic triangulation makes rare but not impossible."""
+    be represented), which the intrinsic triangulation makes rare but not impossible; at a boundary vertex
+    it names :func:`~warp_regdist.geometry.obtuse_boundary.split_obtuse_boundary`."""
     finite = np.where(np.isfinite(u), u, 0.0)
     top = finite.max(axis=0)
     low = finite.min(axis=0)
@@ -510,11 +511,14 @@ def _warn_below_zero(ops, u, converged, source_sets):
         else:
             angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
             where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
+    remedy = "a finer or better shaped mesh near the sources avoids it"
+    if ops.basis.shape[1] == 3 and mesh.element_dim == 2 and i in set(boundary_vertices(mesh).tolist()):
+        remedy = ("the vertex is on the boundary: warp_regdist.split_obtuse_boundary(mesh) splits the boundary sides "
+                  "opposite obtuse angles, and a solve on its mesh has none")
     warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
                   f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
                   f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "
-                  "obtuse angle there must fall below 0; a finer or better shaped mesh near the sources avoids it "
-                  "(docs/real-meshes.md)", MeshWarning, stacklevel=4)
+                  f"obtuse angle there must fall below 0; {remedy} (docs/real-meshes.md)", MeshWarning, stacklevel=4)
 
 
 def _printer(callback):

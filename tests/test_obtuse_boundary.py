@@ -1,0 +1,93 @@
+"""Boundary sides opposite obtuse angles split (geometry/obtuse_boundary.py): one triangle exactly, the
+maximum principle on every decimated scan with boundary, and a distance that no longer dips below 0."""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import meshes
+import warp_regdist as wrd
+from warp_regdist.geometry.obtuse_boundary import obtuse_boundary_sides
+
+SCANS = np.load(Path(__file__).parent / "data" / "scan_decimations.npz")
+
+
+def _scan(k):
+    V, F = SCANS[f"vertices_{k}"].astype(np.float64), SCANS[f"faces_{k}"].astype(np.int64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.MeshWarning)       # a few have vertices at one position
+        return wrd.Mesh(V, F)
+
+
+def test_one_obtuse_triangle_is_split_at_the_foot_of_its_altitude():
+    # the angle at (0.5, 0.3) is obtuse; the foot of its altitude on the side from (0, 0) to (2, 0) is at 0.25
+    V = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.5, 0.3, 0.0]])
+    split = wrd.split_obtuse_boundary(wrd.Mesh(V, [[0, 1, 2]]))
+    assert split.n_inserted == 1 and split.remaining == 0
+    assert split.ends.tolist() == [[0, 1]] and split.t == pytest.approx([0.25], abs=1e-15)
+    np.testing.assert_allclose(split.mesh.vertices[3], [0.5, 0.0, 0.0], atol=1e-15)
+    assert split.mesh.elements.tolist() == [[0, 3, 2], [3, 1, 2]] and split.parent.tolist() == [0, 0]
+    W = wrd.build_operators(split.mesh, "intrinsic").stiffness.toarray()
+    # two right triangles: the sides opposite the right angles have weight 0, every other weight is > 0
+    assert W[0, 2] == pytest.approx(0.0, abs=1e-15) and W[1, 2] == pytest.approx(0.0, abs=1e-15)
+    assert max(W[0, 3], W[1, 3], W[2, 3]) < 0.0
+
+
+def test_a_foot_near_a_corner_is_one_split():
+    # the altitude from (0.1, 0.05) falls at 0.05 of the side: two right triangles, no side left obtuse
+    V = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.1, 0.05, 0.0]])
+    split = wrd.split_obtuse_boundary(wrd.Mesh(V, [[0, 1, 2]]))
+    assert split.t.tolist() == pytest.approx([0.05], abs=1e-15) and split.remaining == 0
+    assert obtuse_boundary_sides(split.mesh.vertices, split.mesh.elements)[0].size == 0
+    assert split.mesh.element_volumes.sum() == pytest.approx(0.05, rel=1e-14)
+    np.testing.assert_allclose(split.interpolation() @ V, split.mesh.vertices, atol=1e-15)
+
+
+def test_a_closed_mesh_comes_back_as_it_is():
+    mesh = wrd.Mesh(*meshes.icosphere(1, 1.0))
+    split = wrd.split_obtuse_boundary(mesh)
+    assert split.mesh is mesh and split.n_inserted == 0 and split.ends.shape == (0, 2)
+
+
+@pytest.mark.parametrize("k", range(len(SCANS.files) // 3))
+def test_every_decimated_scan_gets_a_maximum_principle(k):
+    mesh = _scan(k)
+    split = wrd.split_obtuse_boundary(mesh)
+    n = mesh.n_vertices
+    assert split.remaining == 0
+    W = wrd.build_operators(split.mesh, "intrinsic").stiffness.tocoo()
+    off = W.row != W.col
+    assert W.data[off].max() <= 1e-12 * np.abs(W.data).max()          # every weight >= 0, the boundary's too
+    np.testing.assert_array_equal(split.mesh.vertices[:n], mesh.vertices)
+    scale = np.abs(mesh.vertices).max()
+    np.testing.assert_allclose(split.interpolation() @ mesh.vertices, split.mesh.vertices, atol=1e-14 * scale)
+    assert np.all((split.t > 0.0) & (split.t < 1.0))
+    # the same surface: every refined face lies in its parent, and the areas add up face by face
+    areas = np.bincount(split.parent, weights=split.mesh.element_volumes, minlength=mesh.elements.shape[0])
+    np.testing.assert_allclose(areas, mesh.element_volumes, rtol=1e-9, atol=1e-14 * areas.max())
+
+
+def test_the_split_takes_the_distance_off_below_zero():
+    # alligator decimated to 630 vertices: from vertex 401 the distance dips to -0.27% of its max at vertex 26,
+    # beside an obtuse boundary triangle (measured; the conic solver on the same problem agrees that it dips)
+    mesh = _scan(0)
+    assert str(SCANS["name_0"]) == "alligator" and mesh.n_vertices == 630
+    with pytest.warns(wrd.MeshWarning, match=r"split_obtuse_boundary\(mesh\)"):
+        u = wrd.DistanceSolver(mesh, 0.0, workers=1).solve([401]).distance
+    assert u.min() < -2e-3 * u.max() and int(np.argmin(u)) == 26
+    split = wrd.split_obtuse_boundary(mesh)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wrd.MeshWarning)
+        v = wrd.DistanceSolver(split.mesh, 0.0, workers=1).solve([401]).distance[:mesh.n_vertices]
+    assert v.min() >= -1e-6 * v.max()
+    assert np.abs(v - u).mean() < 0.01 * u.max()                        # the same distance elsewhere
+
+
+def test_bad_inputs_are_refused():
+    with pytest.raises(ValueError, match="expected a warp_regdist.Mesh, got ndarray"):
+        wrd.split_obtuse_boundary(np.zeros((3, 3)))
+    T, tets = meshes.cube_tets(2)
+    with pytest.raises(ValueError, match="expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh"):
+        wrd.split_obtuse_boundary(wrd.Mesh(T, tets))

@@ -1,0 +1,150 @@
+"""Boundary sides opposite obtuse angles, split until the intrinsic Delaunay triangulation has none.
+
+The intrinsic flips (:mod:`warp_regdist.geometry.intrinsic`) make every interior cotangent weight
+>= 0, but they never flip a boundary side: where the angle opposite one is above 90 degrees, its
+weight cot(theta) / 2 stays negative, and the distance at the vertices of such a triangle can fall
+below 0 (docs/real-meshes.md). Splitting that side at the foot of the altitude from the obtuse
+corner gives two right triangles, whose sides opposite the corner's two parts have acute angles
+there. Boundary sides of an intrinsic triangulation are the input's own edges, so the new vertex
+is a point of that edge in space: the refined mesh is an ordinary :class:`Mesh`, on the same
+surface, whose first n vertices and their numbers are the input's. Rounds of splits (one side per
+input face each round) and flips repeat until no boundary angle is obtuse.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+
+from ..errors import MeshWarning
+from .intrinsic import _edges, intrinsic_delaunay
+from .mesh import Mesh
+
+__all__ = ["BoundarySplit", "split_obtuse_boundary", "obtuse_boundary_sides"]
+
+OBTUSE = 1e-9
+"""A boundary angle is obtuse where its cosine is below -OBTUSE."""
+FOOT_RANGE = (0.01, 0.99)
+"""The foot's parameter along its side is clamped to this range (where the foot falls within 1% of a corner, the angle there is all but right)."""
+MAX_ROUNDS = 32
+
+
+@dataclasses.dataclass
+class BoundarySplit:
+    """A triangle mesh with its boundary sides opposite obtuse angles split.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The refined mesh: vertices 0..n-1 are the input's, n..n+k-1 the inserted ones.
+    ends : (k, 2) int64
+        The input edge each inserted vertex lies on (two input vertices).
+    t : (k,) float64
+        Where on it: vertex n + i is ``(1 - t[i]) * x[ends[i, 0]] + t[i] * x[ends[i, 1]]``.
+    parent : (m',) int64
+        The input face each face of ``mesh`` lies in.
+    remaining : int
+        Boundary sides still opposite an obtuse angle after MAX_ROUNDS rounds (0 when it converged).
+    """
+
+    mesh: Mesh
+    ends: np.ndarray
+    t: np.ndarray
+    parent: np.ndarray
+    remaining: int = 0
+
+    @property
+    def n_inserted(self):
+        return int(self.t.size)
+
+    def interpolation(self):
+        """The (n + k, n) sparse matrix P of the inserted vertices' linear interpolation, P @ x = refined x."""
+        import scipy.sparse as sp
+
+        n, k = self.mesh.n_vertices - self.t.size, self.t.size
+        rows = np.concatenate([np.arange(n), n + np.arange(k), n + np.arange(k)])
+        cols = np.concatenate([np.arange(n), self.ends[:, 0], self.ends[:, 1]])
+        vals = np.concatenate([np.ones(n), 1.0 - self.t, self.t])
+        return sp.csr_matrix((vals, (rows, cols)), shape=(n + k, n))
+
+
+def obtuse_boundary_sides(vertices, faces):
+    """The boundary sides of the intrinsic Delaunay triangulation of (``vertices`` (n, 3), ``faces``
+    (m, 3)) opposite an obtuse angle: (input face (s,), corner i of that face where the side starts
+    (s,), foot parameter (s,) from corner i to corner i + 1). Empty on a tufted cover (no boundary)."""
+    F = np.asarray(faces, dtype=np.int64)
+    T = intrinsic_delaunay(vertices, F)
+    empty = np.zeros(0, dtype=np.int64)
+    if T.tufted:
+        return empty, empty, np.zeros(0)
+    edge_id, _, _ = _edges(F)
+    E = T.edges.shape[0]
+    count = np.bincount(edge_id, minlength=E)
+    ids = T.length_ids.ravel()
+    h = np.flatnonzero(ids < E)
+    h = h[count[ids[h]] == 1]                           # boundary sides: never flipped, one halfedge each
+    L = T.lengths.ravel()
+    f, i = h // 3, h % 3
+    l_ab, l_bc, l_ca = L[h], L[3 * f + (i + 1) % 3], L[3 * f + (i + 2) % 3]
+    cos_c = (l_bc * l_bc + l_ca * l_ca - l_ab * l_ab) / (2.0 * l_bc * l_ca)
+    bad = cos_c < -OBTUSE
+    h, f, i, l_ab, l_bc, l_ca = h[bad], f[bad], i[bad], l_ab[bad], l_bc[bad], l_ca[bad]
+    foot = np.clip((l_ab * l_ab + l_ca * l_ca - l_bc * l_bc) / (2.0 * l_ab * l_ab), *FOOT_RANGE)
+    # the same side in the input: its one input halfedge, run the same way or (an oriented face) reversed
+    start = T.faces[f, i]
+    hin = np.full(E, -1, dtype=np.int64)
+    hin[edge_id] = np.arange(edge_id.size)
+    g = hin[ids[h]]
+    face, corner = g // 3, g % 3
+    foot = np.where(F[face, corner] == start, foot, 1.0 - foot)
+    return face, corner, foot
+
+
+def split_obtuse_boundary(mesh: Mesh) -> BoundarySplit:
+    """``mesh`` (triangles) with every boundary side opposite an obtuse angle of its intrinsic Delaunay
+    triangulation split at the altitude's foot (:mod:`module docs <warp_regdist.geometry.obtuse_boundary>`);
+    distances on ``result.mesh``, restricted to its first ``mesh.n_vertices`` rows, are per input vertex.
+    A closed mesh, or one without such sides, comes back as it is (k = 0)."""
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
+    if mesh.element_dim != 2:
+        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh")
+    V = mesh.vertices.copy()
+    F = mesh.elements.copy()
+    n = V.shape[0]
+    on_edge = np.zeros((0, 2), dtype=np.int64)          # per inserted vertex: its input edge (a, b) ...
+    param = np.zeros(0)                                 # ... and its parameter from a to b
+    parent = np.arange(F.shape[0])
+    remaining = 0
+    for _ in range(MAX_ROUNDS):
+        face, corner, foot = obtuse_boundary_sides(V, F)
+        _, first = np.unique(face, return_index=True)   # one side per face a round
+        face, corner, foot = face[first], corner[first], foot[first]
+        if face.size == 0:
+            break
+        a, b, c = F[face, corner], F[face, (corner + 1) % 3], F[face, (corner + 2) % 3]
+        k = np.arange(face.size) + V.shape[0]
+        V = np.concatenate([V, (1.0 - foot)[:, None] * V[a] + foot[:, None] * V[b]])
+        # on the input edge of the side: an inserted end carries its own, an input end is 0 or 1 along it
+        pad_edge, pad_param = np.concatenate([on_edge, [[-1, -1]]]), np.concatenate([param, [0.0]])
+        ia, ib = np.where(a >= n, a - n, param.size), np.where(b >= n, b - n, param.size)
+        edge = np.where((a >= n)[:, None], pad_edge[ia],
+                        np.where((b >= n)[:, None], pad_edge[ib], np.stack([a, b], axis=1)))
+        pa = np.where(a >= n, pad_param[ia], (a == edge[:, 1]).astype(np.float64))
+        pb = np.where(b >= n, pad_param[ib], (b == edge[:, 1]).astype(np.float64))
+        on_edge = np.concatenate([on_edge, edge])
+        param = np.concatenate([param, (1.0 - foot) * pa + foot * pb])
+        F[face] = np.stack([a, k, c], axis=1)
+        F = np.concatenate([F, np.stack([k, b, c], axis=1)])
+        parent = np.concatenate([parent, parent[face]])
+    else:
+        remaining = obtuse_boundary_sides(V, F)[0].size
+    if remaining:
+        warnings.warn(f"expected the boundary splits to end, got {remaining} boundary sides still opposite an "
+                      f"obtuse angle after {MAX_ROUNDS} rounds; the distance may fall below 0 beside them",
+                      MeshWarning, stacklevel=2)
+    refined = mesh if param.size == 0 else Mesh(V, F)
+    return BoundarySplit(refined, on_edge, param, parent, remaining)
+
