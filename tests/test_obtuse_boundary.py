@@ -91,3 +91,6 @@ def test_bad_inputs_are_refused():
     T, tets = meshes.cube_tets(2)
     with pytest.raises(ValueError, match="expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh"):
         wrd.split_obtuse_boundary(wrd.Mesh(T, tets))
+    points = wrd.Mesh(*meshes.icosphere(1, 1.0)).vertices
+    with pytest.raises(ValueError, match="expected a triangle mesh for split_obtuse_boundary, got a PointCloud"):
+        wrd.split_obtuse_boundary(wrd.PointCloud(points))

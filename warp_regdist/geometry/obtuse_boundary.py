@@ -27,7 +27,7 @@ __all__ = ["BoundarySplit", "split_obtuse_boundary", "obtuse_boundary_sides"]
 OBTUSE = 1e-9
 """A boundary angle is obtuse where its cosine is below -OBTUSE."""
 FOOT_RANGE = (0.01, 0.99)
-"""The foot's parameter along its side is clamped to this range (where the foot falls within 1% of a corner, the angle there is all but right)."""
+"""The foot's parameter along its side is clamped to this range (within 1% of a corner the angle is all but right)."""
 MAX_ROUNDS = 32
 
 
@@ -111,6 +111,9 @@ def split_obtuse_boundary(mesh: Mesh) -> BoundarySplit:
         raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
     if mesh.element_dim != 2:
         raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh")
+    if mesh.element_weights is not None:
+        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a PointCloud (its triangles are "
+                         "local covers of the points, not a surface with a boundary)")
     V = mesh.vertices.copy()
     F = mesh.elements.copy()
     n = V.shape[0]

@@ -30,6 +30,7 @@ import warp as wp
 from ...arguments import check_weight, parse_device, parse_workers
 from ...errors import ConvergenceWarning, MeshWarning
 from ...geometry.mesh import Mesh, boundary_vertices
+from ...geometry.obtuse_boundary import obtuse_boundary_sides
 from ...geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
 from ...geometry.regularizers import build_regularizer
 from ...kernels.lanes import SCALARS, lane_type, lane_width
@@ -491,7 +492,7 @@ def _warn_below_zero(mesh, ops, u, converged, source_sets):
     converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
     below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
     be represented), which the intrinsic triangulation makes rare but not impossible; at a boundary vertex
-    it names :func:`~warp_regdist.geometry.obtuse_boundary.split_obtuse_boundary`."""
+    of a mesh with boundary sides opposite obtuse angles it names :func:`~warp_regdist.geometry.obtuse_boundary.split_obtuse_boundary`."""
     finite = np.where(np.isfinite(u), u, 0.0)
     top = finite.max(axis=0)
     low = finite.min(axis=0)
@@ -512,9 +513,10 @@ def _warn_below_zero(mesh, ops, u, converged, source_sets):
             angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
             where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
     remedy = "a finer or better shaped mesh near the sources avoids it"
-    if ops.basis.shape[1] == 3 and mesh.element_dim == 2 and i in set(boundary_vertices(mesh).tolist()):
-        remedy = ("the vertex is on the boundary: warp_regdist.split_obtuse_boundary(mesh) splits the boundary sides "
-                  "opposite obtuse angles, and a solve on its mesh has none")
+    if (mesh.element_dim == 2 and mesh.element_weights is None and i in set(boundary_vertices(mesh).tolist())
+            and obtuse_boundary_sides(mesh.vertices, mesh.elements)[0].size):
+        remedy = ("the vertex is on the boundary, which has sides opposite obtuse angles (negative weights no flip "
+                  "reaches): warp_regdist.split_obtuse_boundary(mesh) splits them")
     warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
                   f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
                   f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "
