@@ -94,7 +94,7 @@ class SourceTriangles:
             hit[np.asarray(s, dtype=np.int64)] = True
         return hit
 
-    def _pairs(self, columns, k):
+    def wedges(self, columns, k):
         """(faces, corners, column) of every wedge of the k columns of ``columns``: a list of (column,
         sources) items, or an int j0 for all-pairs columns (column j's source is vertex j0 + j)."""
         if not self.active:
@@ -109,10 +109,10 @@ class SourceTriangles:
 
     def gauge(self, g, columns):
         """(m, k) the gauge of every element's constraint set at g = G u (m, 3, k): |g|, or on the wedges of
-        ``columns`` (as in :meth:`_pairs`) max(n_1 . g, n_2 . g). A column is within its constraints where
+        ``columns`` (as in :meth:`wedges`) max(n_1 . g, n_2 . g). A column is within its constraints where
         its gauge is <= 1."""
         out = np.sqrt(np.square(g).sum(axis=1))
-        faces, corners, cols = self._pairs(columns, g.shape[2])
+        faces, corners, cols = self.wedges(columns, g.shape[2])
         if faces.size:
             n = self.directions[faces, corners]                           # (r, 2, 3)
             out[faces, cols] = np.einsum("rkd,rd->rk", n, g[faces, :, cols]).max(axis=1)
@@ -136,7 +136,7 @@ class SourceTriangles:
         """(m, 3, k): g = G u (m, 3, k) projected onto every element's constraint set (the unit ball, the
         wedges of ``columns`` as in :meth:`gauge`)."""
         z = g / np.maximum(1.0, np.sqrt(np.square(g).sum(axis=1, keepdims=True)))
-        faces, corners, cols = self._pairs(columns, g.shape[2])
+        faces, corners, cols = self.wedges(columns, g.shape[2])
         if faces.size:
             z[faces, :, cols] = wedge_projection(g[faces, :, cols], self.directions[faces, corners])
         return z

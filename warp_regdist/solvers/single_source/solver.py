@@ -47,6 +47,7 @@ from ..common.results import DistanceResult
 from .batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
 from .gradients import SmoothingProblem
+from .vertex_ascent import VertexAscent
 from ..common.source_triangles import SourceTriangles, check_source_triangles
 from ..common.stopping import steep_columns
 
@@ -149,6 +150,7 @@ class DistanceSolver:
         self.alpha = self.regularizer.alpha
         self.source_triangles = SourceTriangles(ops, check_source_triangles(source_triangles, mesh.element_dim))
         self.device_mesh = DeviceMesh(ops, self.scalar, self.device, self.source_triangles.directions)
+        self.vertex_ascent = VertexAscent(ops, self.regularizer.weights, self.alpha, self.source_triangles)
         if hierarchy is None:
             hierarchy = smoothed_aggregation(ops.stiffness)
         elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != mesh.n_vertices:
@@ -313,6 +315,7 @@ class DistanceSolver:
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
         res._keep(self.smoothing_problem(options), source_sets)
+        stuck = self._ascend(res, sets, options)
         steep, gradient = steep_columns(self.source_triangles, res.distance, options.max_gradient,
                                        [src for src, _ in sets])
         res.converged &= ~steep
@@ -321,11 +324,39 @@ class DistanceSolver:
                           f"its bound {np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
         _warn_below_zero(self.mesh, self.operators, res.distance, res.converged, source_sets)
-        if not res.converged.all() and (~res.converged & ~steep).any() and not res.interrupted:
+        capped = ~res.converged & ~steep & ~stuck
+        if capped.any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
-                          f"{np.count_nonzero(~res.converged & ~steep)} of {k} source sets", ConvergenceWarning,
-                          stacklevel=3)
+                          f"{np.count_nonzero(capped)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         return res
+
+    def _ascend(self, res, sets, options):
+        """The ADMM's result ``res`` after :class:`VertexAscent` (vertices moved alone by more than a tenth of
+        the error estimate's tolerance eps): ``error_estimate`` at least the largest move left (in units of
+        max u), and a column whose move left exceeds eps not converged (with a ConvergenceWarning). Returns
+        those columns (k,) bool."""
+        eps = self.regularizer.tolerance_factor * options.eps_estimate
+        if not np.isfinite(eps):
+            return np.zeros(len(sets), dtype=bool)
+        u = res.distance
+        finite = np.isfinite(u)
+        free = finite.copy()
+        for j, (src, _) in enumerate(sets):
+            free[src, j] = False
+        u0 = np.where(finite, u, 0.0)
+        top = np.maximum(np.abs(u0).max(axis=0), 1e-300)
+        moved, left = self.vertex_ascent.ascend(u0, free, [src for src, _ in sets], 0.1 * eps * top)
+        res.distance = np.where(finite, moved, u).astype(u.dtype)
+        left /= top
+        res.error_estimate = np.maximum(res.error_estimate, left)
+        stuck = res.converged & (left > eps)
+        res.converged &= ~stuck
+        if stuck.any():
+            warnings.warn(f"{np.count_nonzero(stuck)} of {left.size} source sets stopped with a vertex that alone "
+                          f"could still move by {100 * left[stuck].max():.3g}% of the max (more than eps_estimate "
+                          f"{100 * eps:.3g}%): not converged; res.polish() finds the minimizer",
+                          ConvergenceWarning, stacklevel=4)
+        return stuck
 
     def _refined_solver(self, S):
         """A solver of the same settings on the refined mesh of ``S``, kept for the next call with the same
