@@ -55,13 +55,14 @@ class EigenbasisUStep:
     for symmetric R (n, n), W the stiffness (n, n), M = diag(A_V). The multipliers mu (n,) and U's
     constant part c (which W does not see) solve one bordered system: diag(U) = 0 (n equations) and
     sum(R + Diag(mu)) = 0 (the right-hand side has no constant part). Set up once: the
-    eigendecomposition of M^(-1/2) W M^(-1/2) (float64, then ``dtype``) and the LU factors of the
-    bordered system.
+    eigendecomposition M^(-1/2) W M^(-1/2) = Phi Lambda Phi^T (float64, then ``dtype``), kept as
+    Psi = M^(-1/2) Phi, so that U = Psi ((Psi^T (R + Diag(mu)) Psi) * dinv) Psi^T / scale + c with
+    dinv_pq = 1 / (lambda_p + lambda_q), and the LU factors of the bordered system.
 
     Each call is 8 n^3 flops of BLAS in ``dtype``, a third less than six general products: every
-    product of the form Phi^T S Phi or Phi S Phi^T has a symmetric S = L + L^T (L its lower triangle,
+    product of the form Psi^T S Psi or Psi S Psi^T has a symmetric S = L + L^T (L its lower triangle,
     diagonal halved) and is one triangular product (n^3) and one symmetric rank-2k update (2 n^3),
-    and Phi^T Diag(mu) Phi is two rank-k updates (n^3).
+    and Psi^T Diag(mu) Psi is two rank-k updates (n^3).
     """
 
     def __init__(self, stiffness, vertex_volumes, dtype="float64"):
@@ -75,9 +76,11 @@ class EigenbasisUStep:
         border[:n, n], border[n, :n] = 1.0, vertex_volumes
         self.border = sl.lu_factor(border)
         self.dtype = np.dtype(dtype)
-        self.Phi = np.asfortranarray(Phi, dtype=self.dtype)
+        Phi *= s[:, None]
+        self.Psi = np.asfortranarray(Phi, dtype=self.dtype)
+        del Phi
         self.dinv = np.asfortranarray(np.where(d > 0, 1 / np.where(d > 0, d, 1.0), 0.0), dtype=self.dtype)
-        self.s = s.astype(self.dtype)
+        self.areas = np.asarray(vertex_volumes, dtype=np.float64)
         self.n = n
         self._trmm, self._syr2k, self._syrk = sl.get_blas_funcs(("trmm", "syr2k", "syrk"), dtype=self.dtype)
 
@@ -89,41 +92,41 @@ class EigenbasisUStep:
         return T
 
     def half_solve(self, C):
-        """P = Phi L (n, n) for symmetric C (n, n, Fortran order; overwritten), where L is the lower
-        triangle (diagonal halved) of Y = (Phi^T C Phi) * dinv: Phi Y Phi^T = P Phi^T + Phi P^T."""
-        C[np.diag_indices(self.n)] *= 0.5  # C = L_C + L_C^T: Phi^T C Phi = syr2k(Phi, L_C Phi)
-        Y = self._times_dinv(self._syr2k(1.0, self.Phi, self._trmm(1.0, C, self.Phi, lower=1), trans=1, lower=1))
+        """P = Psi L (n, n) for symmetric C (n, n, Fortran order; overwritten), where L is the lower
+        triangle (diagonal halved) of Y = (Psi^T C Psi) * dinv: Psi Y Psi^T = P Psi^T + Psi P^T."""
+        C[np.diag_indices(self.n)] *= 0.5  # C = L_C + L_C^T: Psi^T C Psi = syr2k(Psi, L_C Psi)
+        Y = self._times_dinv(self._syr2k(1.0, self.Psi, self._trmm(1.0, C, self.Psi, lower=1), trans=1, lower=1))
         del C  # at most four (n, n) temporaries at a time (memory_estimate)
-        return self._trmm(1.0, Y, self.Phi, side=1, lower=1)
+        return self._trmm(1.0, Y, self.Psi, side=1, lower=1)
 
-    def to_vertices(self, P, scale, c):
-        """U = S (P Phi^T + Phi P^T) S / scale + c (n, n) with S = M^(-1/2), from its upper triangle:
-        exactly symmetric, zero diagonal."""
-        s = self.s
-        U = self._syr2k(1 / scale, P, self.Phi, lower=1).T  # its upper triangle
-        U *= s[:, None]
-        U *= s[None, :]
+    def to_vertices(self, P, scale, c, out=None):
+        """U = (P Psi^T + Psi P^T) / scale + c (n, n), into ``out`` (n, n) when given: from one triangle,
+        so exactly symmetric, with a zero diagonal."""
+        zeros = np.zeros((self.n, self.n), dtype=self.dtype, order="F")
+        upper = self._syr2k(1 / scale, P, self.Psi, c=zeros, overwrite_c=1, lower=1).T  # its upper triangle, 0 below
+        upper[np.diag_indices(self.n)] = 0
+        U = np.add(upper, upper.T, out=out)
         U += self.dtype.type(c)
-        U = np.triu(U, 1)
-        U += U.T
+        U[np.diag_indices(self.n)] = 0
         return U
 
-    def __call__(self, R, scale):
-        """U (n, n) in ``dtype``: exactly symmetric, zero diagonal."""
-        Phi, s, n = self.Phi, self.s, self.n
-        P = self.half_solve(((s[:, None] * R.astype(self.dtype, copy=False)) * s[None, :]).T)
-        diag = 2 * np.einsum("ij,ij->i", P, Phi, dtype=np.float64) / scale  # diag(Phi (L + L^T) Phi^T) / scale
-        rhs = np.concatenate([-s.astype(np.float64) ** 2 * diag, [-R.sum(dtype=np.float64) / scale]])
-        sol = sl.lu_solve(self.border, rhs)  # the scaled multipliers M^(-1) mu / scale, and c
-        mu = (scale * sol[:n]).astype(self.dtype)
-        S = np.zeros((n, n), dtype=self.dtype, order="F")  # Phi^T Diag(mu) Phi: one rank-k update per sign
+    def __call__(self, R, scale, out=None):
+        """U (n, n) in ``dtype`` (into ``out`` when given) for symmetric R (overwritten when already in
+        ``dtype``): exactly symmetric, zero diagonal."""
+        Psi, n = self.Psi, self.n
+        total = float(R.sum(dtype=np.float64))
+        P = self.half_solve(R.astype(self.dtype, copy=False).T)
+        diag = 2 * np.einsum("ij,ij->i", P, Psi, dtype=np.float64) / scale  # diag(Psi (L + L^T) Psi^T) / scale
+        sol = sl.lu_solve(self.border, np.concatenate([-diag, [-total / scale]]))  # M^(-1) mu / scale, and c
+        mu = scale * sol[:n] * self.areas  # the multipliers, for Psi^T Diag(mu) Psi: one rank-k update per sign
+        S = np.zeros((n, n), dtype=self.dtype, order="F")
         for sign, rows in ((1.0, mu > 0), (-1.0, mu < 0)):
             if rows.any():
-                S = self._syrk(sign, (Phi[rows] * np.sqrt(np.abs(mu[rows]))[:, None]).T, beta=1.0, c=S,
-                               overwrite_c=1, lower=1)
-        P += self._trmm(1.0, self._times_dinv(S), Phi, side=1, lower=1)
+                S = self._syrk(sign, (Psi[rows] * np.sqrt(np.abs(mu[rows])).astype(self.dtype)[:, None]).T, beta=1.0,
+                               c=S, overwrite_c=1, lower=1)
+        P += self._trmm(1.0, self._times_dinv(S), Psi, side=1, lower=1)
         del S
-        return self.to_vertices(P, scale, sol[n])
+        return self.to_vertices(P, scale, sol[n], out)
 
 
 class EigenbasisADMM(PairsState):
@@ -166,9 +169,15 @@ class EigenbasisADMM(PairsState):
         self._areas = setup.vertex_volumes.astype(np.float64)
         self._real = np.dtype(dtype).type
         self._areas_dt = self._areas.astype(self._real)
+        self._half_areas_dt = (0.5 * self._areas).astype(self._real)
         self._weights_dt = np.outer(self._areas, self._areas).astype(self._real)
         self._gemv = sl.get_blas_funcs("gemv", dtype=self._real)
-        self._lanes = np.zeros((self.n, setup.nb * setup.W), dtype=self._real)  # U padded to whole lanes
+        # the U-step's right-hand side and a temporary, kept from iteration to iteration; U padded to whole
+        # lanes (on the CPU the state array itself, which the U-step then writes in place)
+        self._B, self._R = (np.empty((self.n, self.n), dtype=self._real) for _ in range(2))
+        self._on_cpu = wp.get_device(device).is_cpu
+        self._lanes = (self.view("U").reshape(self.n, -1) if self._on_cpu
+                       else np.zeros((self.n, setup.nb * setup.W), dtype=self._real))
 
     def _matrix(self, name):
         """State array ``name`` as an (n, n) numpy array (a view on the CPU)."""
@@ -191,14 +200,14 @@ class EigenbasisADMM(PairsState):
         """The U-step (dense, on the host) then the element step; returns 0 (no PCG iterations)."""
         rho = self.penalties[0]
         n = self.n
-        B = self._matrix("DZ") * self._real(rho)
+        B = np.multiply(self._matrix("DZ"), self._real(rho), out=self._B)
         B -= self._matrix("DY_acc")
-        B *= self._areas_dt[None, :]
-        R = B + B.T
-        R *= 0.5
+        B *= self._half_areas_dt[None, :]
+        R = np.add(B, B.T, out=self._R)   # sym(D (rho Z - Y) M) + A_V A_V^T
         R += self._weights_dt
-        self._lanes[:, :n] = self.u_step(R, self.alpha + 0.5 * rho)
-        self.put("U", self._lanes.reshape(n, self.setup.nb, self.setup.W))
+        self.u_step(R, self.alpha + 0.5 * rho, out=self._lanes[:, :n])
+        if not self._on_cpu:
+            self.put("U", self._lanes.reshape(n, self.setup.nb, self.setup.W))
         for name in ("DZ_acc", "DY_acc", "acc"):
             self.arrays[name].zero_()
         self.element.set_param_by_name("rho_v", self.scalar(self.rho_v))
@@ -214,7 +223,7 @@ class EigenbasisADMM(PairsState):
         pairs = np.zeros(5)
         # a^T U^2 a with scipy's BLAS, the U-step's: numpy's wheel has its own OpenBLAS, whose threads spin
         # idle for a while after each product and would take the cores from the next U-step (up to half its speed)
-        U2a = self._gemv(1.0, (U * U).T, self._areas_dt)  # U * U is symmetric: its transpose is Fortran order
+        U2a = self._gemv(1.0, np.multiply(U, U, out=self._B).T, self._areas_dt)  # symmetric: .T is Fortran order
         pairs[X2] = pairs[U2] = float(self._areas @ U2a.astype(np.float64))
         return acc[[R2, G2, Z2]].astype(np.float64), pairs
 
