@@ -239,9 +239,13 @@ class SmoothedProblem:
         self._last = None    # the last _Factor, whose PARDISO handle the next one refactors
 
     def _g(self, v):
-        """(g = G v (m, 3), |g|^2 (m,), 1 / (1 - |g|^2) on the ball's elements and 0 on the wedges (m,))."""
+        """(g = G v (m, 3), |g|^2 (m,)): valid anywhere, the constraint's boundary included."""
         g = (self.G @ v).reshape(self.m, 3)
-        t = np.einsum("ec,ec->e", g, g)
+        return g, np.einsum("ec,ec->e", g, g)
+
+    def _g_inv(self, v):
+        """(g, |g|^2 (m,), 1 / (1 - |g|^2) on the ball's elements and 0 on the wedges (m,)), v strictly inside."""
+        g, t = self._g(v)
         inv = np.zeros(self.m)
         inv[self.ball] = 1.0 / (1.0 - t[self.ball])
         return g, t, inv
@@ -251,7 +255,7 @@ class SmoothedProblem:
         return self.bound - v[self.bound_at]
 
     def objective(self, v, mu):
-        g, t, _ = self._g(v)
+        _, t = self._g(v)
         a = self.ops.element_volumes
         return (-self.load @ v + 0.5 * self.alpha * (a @ t) - mu * np.sum(np.log1p(-t[self.ball]))
                 - mu * np.sum(np.log(self._wedge_slack(v) / self.bound)))
@@ -259,7 +263,7 @@ class SmoothedProblem:
     def barrier_gradient(self, v):
         """d grad F / d mu (f,): G^T (2 g_e / (1 - |g_e|^2)) on the ball's elements, 1 / (l_sa - u_a) at
         each wedge bound's vertex."""
-        g, _, inv = self._g(v)
+        g, _, inv = self._g_inv(v)
         return (self.G.T @ ((2.0 * inv)[:, None] * g).ravel()
                 + np.bincount(self.bound_at, 1.0 / self._wedge_slack(v), minlength=self.load.size))
 
@@ -267,7 +271,7 @@ class SmoothedProblem:
         """grad F (f,) and H (f, f) CSR on the free vertices at v (inside the constraints): per element
         c_e = alpha a_e + 2 mu / (1 - |g_e|^2) (alpha a_e on the wedges) and
         H = G^T blockdiag(c_e I + 4 mu g_e g_e^T / (1 - |g_e|^2)^2) G + diag(sum of mu / (l_sa - u_a)^2 at a)."""
-        g, _, inv = self._g(v)
+        g, _, inv = self._g_inv(v)
         c = self.ops.element_volumes * self.alpha + 2.0 * mu * inv
         slack = self._wedge_slack(v)
         grad = (-self.load + self.G.T @ (c[:, None] * g).ravel()
@@ -279,7 +283,7 @@ class SmoothedProblem:
 
     def max_gauge(self, v):
         """max over elements of the constraint's gauge: |g| on the ball's, u_a / l_sa on the wedges'."""
-        g, t, _ = self._g(v)
+        _, t = self._g(v)
         wedge = np.max(v[self.bound_at] / self.bound, initial=0.0)
         return max(float(np.sqrt(np.max(t[self.ball], initial=0.0))), float(wedge))
 
@@ -287,7 +291,7 @@ class SmoothedProblem:
         """The largest s <= 1 that keeps every slack at least ``keep`` times its value: 1 - |g + s dg|^2 >=
         keep (1 - |g|^2) on the ball's elements (g = G v, dg = G step: the positive root of
         |dg|^2 s^2 + 2 (g . dg) s - (1 - keep) (1 - |g|^2)), and l_sa - u_a - s du_a >= keep (l_sa - u_a)."""
-        g, t, _ = self._g(v)
+        g, t = self._g(v)
         dg = (self.G @ step).reshape(self.m, 3)
         a, b = np.einsum("ec,ec->e", dg, dg), 2.0 * np.einsum("ec,ec->e", g, dg)
         c = -(1.0 - keep) * (1.0 - t)
