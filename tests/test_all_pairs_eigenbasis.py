@@ -87,8 +87,8 @@ def test_auto_takes_eigenbasis_on_small_meshes_on_the_cpu(bumpy42):
 
 def test_auto_takes_consensus_above_the_eigenbasis_bound(bumpy42):
     mesh, _ = bumpy42
-    assert wrd.AllPairsOptions().eigenbasis_max_vertices == 2000
-    assert "auto: eigenbasis on the CPU up to 2,000 vertices" in open(cli_allpairs.__file__).read()  # --help says it
+    assert wrd.AllPairsOptions().eigenbasis_max_vertices == 3000
+    assert "auto: eigenbasis on the CPU up to 3,000 vertices" in open(cli_allpairs.__file__).read()  # --help says it
     options = wrd.AllPairsOptions(eigenbasis_max_vertices=mesh.n_vertices - 1)
     solver = wrd.AllPairsSolver(mesh, 0.03, device="cpu", options=options)
     assert solver.engine(solver.options) == "consensus"

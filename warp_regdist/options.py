@@ -242,7 +242,7 @@ class AllPairsOptions(_Options):
     cg_max_iterations: int = 500
     max_gradient: float = 1.5
     engine: str = "auto"
-    eigenbasis_max_vertices: int = 2000
+    eigenbasis_max_vertices: int = 3000
 
     _INFINITE: ClassVar[tuple[str, ...]] = ("eps_change", "eps_excess", "rho_doubling")
     _CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"engine": ("auto", "eigenbasis", "consensus")}

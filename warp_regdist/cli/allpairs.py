@@ -57,7 +57,7 @@ def add_parser(sub) -> None:
                           help="CPU processes sharing every step of the consensus engine (default: the cores available)")
     allpairs.add_argument("--engine", choices=("auto", "eigenbasis", "consensus"), default="auto",
                           help="the splitting: eigenbasis (exact dense U-step, small meshes), consensus (PCG, any size); "
-                          "auto: eigenbasis on the CPU up to 2,000 vertices (default: auto)")
+                          "auto: eigenbasis on the CPU up to 3,000 vertices (default: auto)")
     repair_option(allpairs)
     source_triangles_option(allpairs)
     solver_options(allpairs)
