@@ -110,6 +110,23 @@ def test_smoothness_of_constant_and_eigenvectors_is_zero(sphere):
     np.testing.assert_array_less(smoothness(phi[:, 1:9], ops, k=9), 1e-8)
 
 
+def test_smoothness_is_the_same_by_arpack_on_a_mesh_without_symmetries(monkeypatch):
+    """Above DENSE_EIGEN_VERTICES the eigenvectors come from ARPACK: the same projection to 1e-8 where
+    no eigenvalue repeats (a jittered sphere), and the same number on every call."""
+    from warp_regdist import metrics
+
+    V, F = icosphere(2)
+    V = V * (1.0 + 0.05 * np.random.default_rng(3).standard_normal((len(V), 1)))
+    ops = wrd.build_operators(wrd.Mesh(V, F))
+    fields = np.stack([V[:, 0] ** 2, np.exp(V[:, 2]), V[:, 1] * V[:, 2]], axis=1)
+    dense = smoothness(fields, ops, k=12)
+    monkeypatch.setattr(metrics, "DENSE_EIGEN_VERTICES", 10)
+    arpack = smoothness(fields, ops, k=12)
+    np.testing.assert_allclose(arpack, dense, atol=1e-8)
+    assert np.array_equal(smoothness(fields, ops, k=12), arpack)
+    assert dense.min() > 1e-3                  # not in the span: the comparison tests the projection
+
+
 def test_smoothness_of_noise_is_large_and_of_a_coordinate_small(sphere):
     V, ops = sphere
     noise = np.random.default_rng(0).standard_normal(len(V))

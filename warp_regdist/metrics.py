@@ -14,10 +14,11 @@ from __future__ import annotations
 import numbers
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["symmetry_error", "triangle_inequality_violations", "smoothness", "EXACT_TRIPLET_LIMIT"]
+__all__ = ["symmetry_error", "triangle_inequality_violations", "smoothness", "EXACT_TRIPLET_LIMIT", "DENSE_EIGEN_VERTICES"]
 
 EXACT_TRIPLET_LIMIT = 2e8
 """Largest n^3 that :func:`triangle_inequality_violations` counts exactly (n <= 584)."""
@@ -111,6 +112,28 @@ def triangle_inequality_violations(distance, samples=None, tolerance=0.0, seed=0
     return violating / float(n) ** 3
 
 
+DENSE_EIGEN_VERTICES = 2000
+"""Up to this many vertices :func:`smoothness` takes its eigenvectors from a dense eigendecomposition."""
+
+
+def _low_eigenvectors(operators, area, k):
+    """The k M-orthonormal generalized eigenvectors of W_D phi = lambda M phi with the smallest lambda (n, k).
+
+    Dense (``scipy.linalg.eigh`` of M^(-1/2) W_D M^(-1/2)) up to ``DENSE_EIGEN_VERTICES`` vertices, which
+    keeps every copy of a repeated eigenvalue (meshes with symmetries); above, ARPACK's shift-invert
+    Lanczos just below the spectrum from a fixed start vector, the same basis on every call."""
+    n = area.size
+    if n <= DENSE_EIGEN_VERTICES:
+        scale = 1.0 / np.sqrt(area)
+        A = scale[:, None] * operators.stiffness.toarray() * scale[None, :]
+        _, psi = scipy.linalg.eigh(A, subset_by_index=[0, k - 1])
+        return scale[:, None] * psi
+    sigma = -1e-2 / operators.total_volume ** (2.0 / (operators.basis.shape[1] - 1))   # W_D - sigma M > 0
+    start = np.random.default_rng(0).standard_normal(n)
+    _, phi = spla.eigsh(operators.stiffness.tocsc(), k=k, M=sp.diags(area).tocsc(), sigma=sigma, which="LM", v0=start)
+    return phi
+
+
 def smoothness(values, operators, k=50):
     """Relative residual of projecting field(s) onto the first k Laplace-Beltrami eigenvectors.
 
@@ -129,7 +152,7 @@ def smoothness(values, operators, k=50):
     operators : Operators
         From :func:`warp_regdist.build_operators` (uses ``stiffness`` and ``vertex_volumes``).
     k : int
-        Number of eigenvectors, 1 <= k < n.
+        Number of eigenvectors, 1 <= k < n (dense up to ``DENSE_EIGEN_VERTICES`` vertices, ARPACK above).
 
     Returns
     -------
@@ -152,10 +175,7 @@ def smoothness(values, operators, k=50):
     norms = np.sqrt(np.einsum("i,ic,ic->c", area, G, G))
     if np.any(norms == 0):
         raise ValueError("expected fields that are not identically zero, got a zero field")
-    M = sp.diags(area)
-    # shift-invert just below the spectrum: W_D - sigma M is positive definite
-    sigma = -1e-2 / operators.total_volume ** (2.0 / (operators.basis.shape[1] - 1))
-    _, phi = spla.eigsh(operators.stiffness.tocsc(), k=k, M=M.tocsc(), sigma=sigma, which="LM")
+    phi = _low_eigenvectors(operators, area, k)
     residual = G - phi @ (phi.T @ (area[:, None] * G))
     s = np.sqrt(np.einsum("i,ic,ic->c", area, residual, residual)) / norms
     return float(s[0]) if F.ndim == 1 else s
