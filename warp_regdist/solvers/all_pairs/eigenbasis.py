@@ -104,7 +104,6 @@ class EigenbasisUStep:
         so exactly symmetric, with a zero diagonal."""
         zeros = np.zeros((self.n, self.n), dtype=self.dtype, order="F")
         upper = self._syr2k(1 / scale, P, self.Psi, c=zeros, overwrite_c=1, lower=1).T  # its upper triangle, 0 below
-        upper[np.diag_indices(self.n)] = 0
         U = np.add(upper, upper.T, out=out)
         U += self.dtype.type(c)
         U[np.diag_indices(self.n)] = 0
