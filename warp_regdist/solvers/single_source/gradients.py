@@ -244,11 +244,11 @@ class SmoothedProblem:
         return g, np.einsum("ec,ec->e", g, g)
 
     def _g_inv(self, v):
-        """(g, |g|^2 (m,), 1 / (1 - |g|^2) on the ball's elements and 0 on the wedges (m,)), v strictly inside."""
+        """(g, 1 / (1 - |g|^2) on the ball's elements and 0 on the wedges (m,)), v strictly inside."""
         g, t = self._g(v)
         inv = np.zeros(self.m)
         inv[self.ball] = 1.0 / (1.0 - t[self.ball])
-        return g, t, inv
+        return g, inv
 
     def _wedge_slack(self, v):
         """l_sa - u_a of every wedge bound (2r,)."""
@@ -263,7 +263,7 @@ class SmoothedProblem:
     def barrier_gradient(self, v):
         """d grad F / d mu (f,): G^T (2 g_e / (1 - |g_e|^2)) on the ball's elements, 1 / (l_sa - u_a) at
         each wedge bound's vertex."""
-        g, _, inv = self._g_inv(v)
+        g, inv = self._g_inv(v)
         return (self.G.T @ ((2.0 * inv)[:, None] * g).ravel()
                 + np.bincount(self.bound_at, 1.0 / self._wedge_slack(v), minlength=self.load.size))
 
@@ -271,7 +271,7 @@ class SmoothedProblem:
         """grad F (f,) and H (f, f) CSR on the free vertices at v (inside the constraints): per element
         c_e = alpha a_e + 2 mu / (1 - |g_e|^2) (alpha a_e on the wedges) and
         H = G^T blockdiag(c_e I + 4 mu g_e g_e^T / (1 - |g_e|^2)^2) G + diag(sum of mu / (l_sa - u_a)^2 at a)."""
-        g, _, inv = self._g_inv(v)
+        g, inv = self._g_inv(v)
         c = self.ops.element_volumes * self.alpha + 2.0 * mu * inv
         slack = self._wedge_slack(v)
         grad = (-self.load + self.G.T @ (c[:, None] * g).ravel()
