@@ -1,5 +1,7 @@
 """Boundary sides opposite obtuse angles split (geometry/obtuse_boundary.py): one triangle exactly, the
-maximum principle on every decimated scan with boundary, and a distance that no longer dips below 0."""
+maximum principle on every decimated scan with boundary, the feet's derivative against central
+differences, and the solver's default (split_boundary): a distance that no longer dips below 0, per
+input vertex, with warm starts, polish and gradients."""
 
 import warnings
 from pathlib import Path
@@ -74,13 +76,19 @@ def test_the_split_takes_the_distance_off_below_zero():
     # beside an obtuse boundary triangle (measured; the conic solver on the same problem agrees that it dips)
     mesh = _scan(0)
     assert str(SCANS["name_0"]) == "alligator" and mesh.n_vertices == 630
-    with pytest.warns(wrd.MeshWarning, match=r"split_obtuse_boundary\(mesh\)"):
-        u = wrd.DistanceSolver(mesh, 0.0, workers=1).solve([401]).distance
+    with pytest.warns(wrd.MeshWarning, match=r"split_boundary=True \(the default"):
+        u = wrd.DistanceSolver(mesh, 0.0, workers=1, split_boundary=False).solve([401]).distance
     assert u.min() < -2e-3 * u.max() and int(np.argmin(u)) == 26
     split = wrd.split_obtuse_boundary(mesh)
     with warnings.catch_warnings():
         warnings.simplefilter("error", wrd.MeshWarning)
+        solver = wrd.DistanceSolver(mesh, 0.0, workers=1)
+        res = solver.solve([401])
         v = wrd.DistanceSolver(split.mesh, 0.0, workers=1).solve([401]).distance[:mesh.n_vertices]
+    # the default splits the boundary and reports the input's vertices: the same as solving on the split mesh
+    assert solver.solve_mesh.n_vertices == split.mesh.n_vertices == 630 + split.n_inserted
+    assert res.distance.shape == (630,) and res.duals.shape == (split.mesh.elements.shape[0], 3)
+    np.testing.assert_array_equal(res.distance, v)
     assert v.min() >= -1e-6 * v.max()
     assert np.abs(v - u).mean() < 0.01 * u.max()                        # the same distance elsewhere
 
@@ -94,3 +102,55 @@ def test_bad_inputs_are_refused():
     points = wrd.Mesh(*meshes.icosphere(1, 1.0)).vertices
     with pytest.raises(ValueError, match="expected a triangle mesh for split_obtuse_boundary, got a PointCloud"):
         wrd.split_obtuse_boundary(wrd.PointCloud(points))
+    mesh = _scan(12)
+    with pytest.raises(ValueError, match="expected split_boundary as True, False or None, got 'yes'"):
+        wrd.DistanceSolver(mesh, split_boundary="yes")
+    with pytest.raises(ValueError, match="expected triangulation 'intrinsic' with split_boundary=True .*, got 'mesh'"):
+        wrd.DistanceSolver(mesh, triangulation="mesh", split_boundary=True)
+    with pytest.raises(ValueError, match="expected triangulation 'intrinsic' with split_boundary=True .*, got 'mesh'"):
+        wrd.DistanceSolver(wrd.Mesh(T, tets), split_boundary=True)
+    assert wrd.DistanceSolver(mesh, triangulation="mesh").split is None     # the splits go with the intrinsic one
+
+
+@pytest.mark.parametrize("k", [0, 12, 14])
+def test_the_split_vjp_matches_central_differences(k):
+    # alligator 630 (73 inserted), beetle-alt 112 (20) and 1,414 (173, several rounds): the inserted vertices
+    # move with their ends and with their feet, functions of the flipped triangulation's lengths
+    mesh = _scan(k)
+    split = wrd.split_obtuse_boundary(mesh)
+    rng = np.random.default_rng(k)
+    w, D = rng.standard_normal(split.mesh.vertices.shape), rng.standard_normal(mesh.vertices.shape)
+    h = 1e-6 * np.abs(mesh.vertices).max()
+
+    def value(V):
+        moved = wrd.split_obtuse_boundary(wrd.Mesh(V, mesh.elements))
+        assert np.array_equal(moved.mesh.elements, split.mesh.elements)
+        return np.sum(w * moved.mesh.vertices)
+
+    fd = (value(mesh.vertices + h * D) - value(mesh.vertices - h * D)) / (2 * h)
+    assert np.sum(split.vjp(w) * D) == pytest.approx(fd, rel=1e-6)
+    # the feet held fixed (the interpolation alone) would be off by 20-60%
+    assert abs(np.sum((split.interpolation().T @ w) * D) - fd) > 0.05 * abs(fd)
+    with pytest.raises(ValueError, match=rf"expected a gradient of shape \({split.mesh.n_vertices}, 3\)"):
+        split.vjp(np.zeros((mesh.n_vertices, 3)))
+
+
+def test_warm_starts_polish_and_points_on_a_split_boundary():
+    # beetle-alt decimated to 112 vertices, 20 inserted: every output per input vertex, the split mesh's inside
+    mesh = _scan(12)
+    n = mesh.n_vertices
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    on_split = wrd.DistanceSolver(solver.solve_mesh, 0.05, workers=1)
+    assert on_split.split is None and solver.split.n_inserted == 20
+    res = solver.solve([5])
+    warm = solver.solve([5], initial=res)
+    assert warm.iterations < res.iterations and np.abs(warm.distance - res.distance).max() < 5e-3 * res.distance.max()
+    polished = res.polish()
+    np.testing.assert_allclose(polished.distance, on_split.solve([5]).polish().distance[:n], rtol=1e-9, atol=1e-12)
+    assert polished.distance.shape == (n,) and polished.polish_change < 5e-3
+    assert polished.vjp(np.ones(n)).vertices.shape == (n, 3)
+    both = solver.solve_many([[5], [60]], points=[[(0, (0.2, 0.3, 0.5))], [(30, (0.6, 0.2, 0.2))]])
+    assert both.distance.shape == (n, 2)
+    g = both.vjp(np.ones((n, 2)))
+    assert g.vertices.shape == (n, 3) and g.refined_vertices.shape == (both.refined_mesh.n_vertices, 3)
+    assert g.smoothed_distance.shape == (n, 2) and np.isfinite(g.vertices).all()

@@ -59,18 +59,20 @@ class DistanceResult(OptimizeResult):
         The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
-    def _keep(self, problem, source_sets, surface=None):
+    def _keep(self, problem, source_sets, surface=None, split=None, full=None):
         """Keep what :meth:`vjp` and :meth:`polish` need (an attribute, not a key): the
         :class:`~warp_regdist.solvers.single_source.gradients.SmoothingProblem` of the solve (None: not
-        differentiable), the vertex source sets and, for points, the
-        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on."""
-        object.__setattr__(self, "_problem", (problem, source_sets, surface))
+        differentiable), the vertex source sets, for points the
+        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on,
+        and where the solver split the boundary its :class:`~warp_regdist.BoundarySplit` with the distance
+        (n', k) on all of the split mesh's vertices."""
+        object.__setattr__(self, "_problem", (problem, source_sets, surface, split, full))
 
     def _smoothable(self, verb):
         """(problem, source sets, distance (n', k) on the problem's mesh, one column?, surface sources or
-        None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb`` names the operation in their
-        messages)."""
-        problem, source_sets, surface = vars(self).get("_problem", (None, None, None))
+        None, boundary split or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb``
+        names the operation in their messages)."""
+        problem, source_sets, surface, split, full = vars(self).get("_problem", (None,) * 5)
         if problem is None:
             raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertices or points to "
                              f"{verb}, got one from curves (or a copy)")
@@ -83,7 +85,9 @@ class DistanceResult(OptimizeResult):
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
         distance = np.asarray(self.distance if surface is None else self.refined_distance)
         one = distance.ndim == 1
-        return problem, source_sets, distance[:, None] if one else distance, one, surface
+        if split is not None:
+            distance = np.asarray(full).reshape(full.shape[0], -1)
+        return problem, source_sets, distance[:, None] if distance.ndim == 1 else distance, one, surface, split
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
@@ -102,7 +106,7 @@ class DistanceResult(OptimizeResult):
         """
         from ..single_source.gradients import vector_jacobian_product
 
-        problem, source_sets, distance, one, surface = self._smoothable("differentiate")
+        problem, source_sets, distance, one, surface, split = self._smoothable("differentiate")
         n = np.asarray(self.distance).shape[0]
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
@@ -116,9 +120,12 @@ class DistanceResult(OptimizeResult):
         if not np.all(np.isfinite(grad)):
             raise ValueError("expected finite grad_u, got NaN or inf")
         grad = grad[:, None] if one else grad
-        if surface is not None:      # the new vertices of the refined mesh are no outputs: zero
-            grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
+        # the new vertices of the refined (or split) mesh are no outputs: zero
+        grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
         out = vector_jacobian_product(problem, distance, source_sets, grad)
+        if split is not None:        # back through the boundary splits to the mesh they split
+            out["vertices"] = split.vjp(out.vertices)
+            out["smoothed_distance"] = out.smoothed_distance[:split.original.n_vertices]
         if surface is not None:
             from ...geometry.surface_points import refinement_vjp
 
@@ -145,7 +152,7 @@ class DistanceResult(OptimizeResult):
         from ..single_source.gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        problem, source_sets, distance, one, surface = self._smoothable("polish")
+        problem, source_sets, distance, one, surface, split = self._smoothable("polish")
         out = DistanceResult(self)
         out._keep(*vars(self)["_problem"])
         del out["error_estimate"]
@@ -153,6 +160,9 @@ class DistanceResult(OptimizeResult):
                      for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])
+        if split is not None:
+            out._keep(*vars(self)["_problem"][:4], polished)
+            polished = polished[:split.original.n_vertices]
         if surface is not None:
             out["refined_distance"] = polished[:, 0] if one else polished
             polished = polished[:np.asarray(self.distance).shape[0]]

@@ -28,10 +28,10 @@ from numpy.typing import ArrayLike
 import warp as wp
 
 from ...arguments import check_weight, parse_device, parse_workers
-from ...errors import ConvergenceWarning, MeshWarning
-from ...geometry.mesh import Mesh, boundary_vertices
-from ...geometry.obtuse_boundary import obtuse_boundary_sides
-from ...geometry.operators import build_operators, choose_triangulation, corner_angle, largest_basis_angles
+from ...errors import ConvergenceWarning
+from ...geometry.mesh import Mesh
+from ...geometry.obtuse_boundary import boundary_split
+from ...geometry.operators import build_operators, choose_triangulation
 from ...geometry.regularizers import build_regularizer
 from ...kernels.lanes import SCALARS, lane_type, lane_width
 from ...kernels.single_source import CG_TOTAL, ESTIMATE, LANE_ROWS, R_LAST, RHO_LAST, S_LAST
@@ -47,6 +47,7 @@ from ..common.results import DistanceResult
 from .batch import RHO_TABLE, BatchIterations, ColumnBatch, Workspace, collect, device_rule, lanes
 from .sources import check_surface_batch, refined_result, surface_sources, vertex_sources
 from .gradients import SmoothingProblem
+from .below_zero import warn_below_zero
 from .vertex_ascent import VertexAscent
 from ..common.source_triangles import SourceTriangles, check_source_triangles
 from ..common.stopping import steep_columns
@@ -89,7 +90,7 @@ class DistanceSolver:
         CUDA (one batch fills the GPU) and off Linux. Each column's result does not depend on it:
         the workers receive this solver's multigrid hierarchy instead of building their own.
     hierarchy : warp_regdist.linalg.multigrid.Hierarchy or None
-        A multigrid hierarchy of this mesh's stiffness matrix W_D to reuse (e.g. a solver's
+        A multigrid hierarchy of the stiffness matrix W_D of ``solve_mesh`` to reuse (e.g. a solver's
         ``hierarchy`` of the same mesh at another alpha_hat); None: built here.
     options : SolverOptions or None
         Stopping rule, penalty schedule, iteration cap and linear-solve settings (None: the
@@ -107,6 +108,14 @@ class DistanceSolver:
         unit-speed bound on such a triangle takes u below 0 next to s where its angle at s is obtuse),
         "gradient" keeps |grad u| <= 1 there as everywhere (the paper's problem). None: "edges" on
         triangle meshes, "gradient" on tetrahedra (docs/method.md section 2).
+    split_boundary : bool or None
+        With the intrinsic triangulation, split every boundary side opposite an obtuse angle at the
+        foot of its altitude (:func:`~warp_regdist.split_obtuse_boundary`) and solve on the refined
+        mesh: every cotangent weight is then >= 0, and the distance does not dip below 0 beside such
+        sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's.
+        None: True with the intrinsic triangulation (a closed mesh, or one without such sides, is
+        solved as it is). The solver's ``split`` is the :class:`~warp_regdist.BoundarySplit` (None
+        without splits) and ``solve_mesh`` the mesh it computes on.
 
     Examples
     --------
@@ -123,7 +132,7 @@ class DistanceSolver:
                  beta_hat: float | None = None, vector_field: ArrayLike | None = None, device: str | None = None,
                  dtype: str = "float64", workers: int | None = None, hierarchy: Hierarchy | None = None,
                  options: SolverOptions | None = None, triangulation: str | None = None,
-                 source_triangles: str | None = None) -> None:
+                 source_triangles: str | None = None, split_boundary: bool | None = None) -> None:
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -138,23 +147,26 @@ class DistanceSolver:
         self.workers = 1 if self.device.is_cuda or not processes_available() else workers
         self._copy_arguments = dict(alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
                                     vector_field=vector_field, dtype=dtype, options=self.options,
-                                    triangulation=triangulation, source_triangles=source_triangles)
+                                    triangulation=triangulation, source_triangles=source_triangles,
+                                    split_boundary=split_boundary)
         self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
         self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
-        self.operators = ops = build_operators(mesh, triangulation)
-        self.regularizer = build_regularizer(mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
+        self.split = boundary_split(mesh, triangulation, split_boundary)
+        self.solve_mesh = solve_mesh = mesh if self.split is None else self.split.mesh
+        self.operators = ops = build_operators(solve_mesh, triangulation)
+        self.regularizer = build_regularizer(solve_mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
         self.source_triangles = SourceTriangles(ops, check_source_triangles(source_triangles, mesh.element_dim))
         self.device_mesh = DeviceMesh(ops, self.scalar, self.device, self.source_triangles.directions)
         self.vertex_ascent = VertexAscent(ops, self.regularizer.weights, self.alpha, self.source_triangles)
         if hierarchy is None:
             hierarchy = smoothed_aggregation(ops.stiffness)
-        elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != mesh.n_vertices:
-            raise ValueError(f"expected hierarchy as a multigrid Hierarchy of {mesh.n_vertices} unknowns, got "
+        elif not isinstance(hierarchy, Hierarchy) or hierarchy.sizes[0] != solve_mesh.n_vertices:
+            raise ValueError(f"expected hierarchy as a multigrid Hierarchy of {solve_mesh.n_vertices} unknowns, got "
                              f"{hierarchy.sizes[0] if isinstance(hierarchy, Hierarchy) else type(hierarchy).__name__}")
         self.hierarchy = hierarchy
         self._workspaces: dict = {}
@@ -163,13 +175,13 @@ class DistanceSolver:
     def smoothing_problem(self, options=None):
         """The :class:`~warp_regdist.solvers.single_source.gradients.SmoothingProblem` of a solve with
         ``options`` (None: this solver's): what a result's vjp and polish keep of this solver."""
-        return SmoothingProblem(self.mesh, self.operators, self.alpha, self.alpha_hat, self.regularizer.name,
+        return SmoothingProblem(self.solve_mesh, self.operators, self.alpha, self.alpha_hat, self.regularizer.name,
                                 self.source_triangles, self.options if options is None else options)
 
     def source_mask(self, sources, column=0):
-        """Validated vertex ``sources`` of column ``column`` -> (indices (s,), reachable (n,) bool: the
-        vertices of the sources' connected components)."""
-        return vertex_sources(sources, column, self.mesh.n_vertices, self.mesh.components())
+        """Validated vertex ``sources`` of column ``column`` -> (indices (s,), reachable (n',) bool: the
+        vertices of ``solve_mesh`` in the sources' connected components)."""
+        return vertex_sources(sources, column, self.mesh.n_vertices, self.solve_mesh.components())
 
     # ------------------------------------------------------------------ public API
     def _initial_state(self, initial, k):
@@ -187,6 +199,8 @@ class DistanceSolver:
                              f"source set), got shape {np.shape(initial.distance)}")
         if np.isnan(u).any():
             raise ValueError(f"expected initial distances without NaN, got {np.count_nonzero(np.isnan(u))} NaN")
+        if self.split is not None:
+            u = self.split.interpolation() @ u
         if "duals" not in initial:
             return u, None, None
         y = np.asarray(initial.duals, dtype=np.float64)
@@ -272,7 +286,7 @@ class DistanceSolver:
             res = refined._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None, None, False,
                                       callback, options)
             if curves is None:   # vjp and polish on the refined mesh, pulled back through its new vertices
-                res._keep(refined.smoothing_problem(options), list(S.sets), S)
+                res._keep(refined.smoothing_problem(options), list(S.sets), S, *vars(res)["_problem"][3:])
             else:
                 res._keep(None, None)
             return refined_result(res, S, self.mesh.n_vertices, closed)
@@ -291,7 +305,7 @@ class DistanceSolver:
         # whole lane blocks per worker, as even as possible; by default only for batches whose work
         # (vertices x columns) outweighs a worker process's start (~3 s, once per solver)
         parts = min(self.workers, blocks)
-        if self._auto_workers and self._pool is None and self.mesh.n_vertices * k < _PROCESS_WORK:
+        if self._auto_workers and self._pool is None and self.solve_mesh.n_vertices * k < _PROCESS_WORK:
             parts = 1
         bounds = [min(k, W * (blocks * i // parts)) for i in range(parts + 1)]
         groups = [sets[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
@@ -323,11 +337,14 @@ class DistanceSolver:
             warnings.warn(f"ADMM returned distances steeper than their constraint allows (max |grad u| relative to "
                           f"its bound {np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
-        _warn_below_zero(self.mesh, self.operators, res.distance, res.converged, source_sets)
+        warn_below_zero(self.solve_mesh, self.operators, res.distance, res.converged, source_sets)
         capped = ~res.converged & ~steep & ~stuck
         if capped.any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(capped)} of {k} source sets", ConvergenceWarning, stacklevel=3)
+        if self.split is not None:   # the inserted vertices are no outputs; vjp and polish keep them
+            res._keep(*vars(res)["_problem"][:3], self.split, res.distance)
+            res.distance = res.distance[:self.mesh.n_vertices]
         return res
 
     def _ascend(self, res, sets, options):
@@ -377,7 +394,8 @@ class DistanceSolver:
         :meth:`close`; a pool with a dead worker is replaced)."""
         if self._pool is None or len(self._pool) < count or not self._pool.alive():
             self.close()
-            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, mesh=self.mesh, hierarchy=self.hierarchy),),
+            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, mesh=self.solve_mesh, split_boundary=False,
+                                                       hierarchy=self.hierarchy),),
                                     count, first_index=1)
         return self._pool
 
@@ -402,7 +420,7 @@ class DistanceSolver:
         if key not in self._workspaces:
             self._workspaces = {}
             V = lane_type(self.scalar, W)
-            n, m, dev = self.mesh.n_vertices, self.operators.element_volumes.size, self.device
+            n, m, dev = self.solve_mesh.n_vertices, self.operators.element_volumes.size, self.device
             vertexwise = [wp.zeros((n, nb), dtype=V, device=dev) for _ in range(8)]
             ws = Workspace(
                 width=W, u=vertexwise[0], mask=vertexwise[1], Dy=vertexwise[2], Dz=vertexwise[3], rhs=vertexwise[4],
@@ -442,7 +460,7 @@ class DistanceSolver:
         """
         t0 = time.perf_counter()
         k = len(sets)
-        n = self.mesh.n_vertices
+        n = self.solve_mesh.n_vertices
         nb = ws.u.shape[1]
         W = ws.width
 
@@ -512,46 +530,6 @@ class DistanceSolver:
         sources ``sources[j]``)."""
         g = (self.operators.grad @ u).reshape(self.operators.element_volumes.size, 3, -1)
         return self.source_triangles.project(g, list(enumerate(sources[:g.shape[2]])))
-
-
-NEGATIVE = 1e-6
-"""A distance below -NEGATIVE x its column's max is reported (:func:`_warn_below_zero`)."""
-
-
-def _warn_below_zero(mesh, ops, u, converged, source_sets):
-    """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
-    converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
-    below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
-    be represented), which the intrinsic triangulation makes rare but not impossible; at a boundary vertex
-    of a mesh with boundary sides opposite obtuse angles it names :func:`~warp_regdist.geometry.obtuse_boundary.split_obtuse_boundary`."""
-    finite = np.where(np.isfinite(u), u, 0.0)
-    top = finite.max(axis=0)
-    low = finite.min(axis=0)
-    bad = np.flatnonzero((low < -NEGATIVE * np.maximum(top, 1e-300)) & converged)
-    if bad.size == 0:
-        return
-    j = bad[np.argmin(low[bad] / top[bad])]
-    i = int(np.argmin(finite[:, j]))
-    where = ""
-    if ops.basis.shape[1] == 3:
-        around = np.flatnonzero((ops.elements == i).any(axis=1))
-        at_source = [(corner_angle(ops.basis[e], c), int(ops.elements[e, c])) for e in around
-                     for c in range(3) if int(ops.elements[e, c]) in set(np.atleast_1d(source_sets[j]).tolist())]
-        if at_source:
-            angle, source = max(at_source)
-            where = f"; the triangle at that vertex and source {source} has a {angle:.0f}-degree angle at the source"
-        else:
-            angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
-            where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
-    remedy = "a finer or better shaped mesh near the sources avoids it"
-    if (mesh.element_dim == 2 and mesh.element_weights is None and i in set(boundary_vertices(mesh).tolist())
-            and obtuse_boundary_sides(mesh.vertices, mesh.elements)[0].size):
-        remedy = ("the vertex is on the boundary, which has sides opposite obtuse angles (negative weights no flip "
-                  "reaches): warp_regdist.split_obtuse_boundary(mesh) splits them")
-    warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
-                  f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
-                  f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "
-                  f"obtuse angle there must fall below 0; {remedy} (docs/real-meshes.md)", MeshWarning, stacklevel=4)
 
 
 def _printer(callback):

@@ -73,8 +73,9 @@ class VertexAscent:
         g = (ops.grad @ u).reshape(m, 3, k)
         b = np.einsum("mcd,mdk->mck", self.hat, g)                               # (m, c, k) b . g
         a = self.corner_norms[:, :, None]
-        disc = np.square(b) - a * (np.square(g).sum(axis=1) - 1.0)[:, None, :]
-        root = np.sqrt(np.maximum(disc, 0.0))
+        with np.errstate(over="ignore", invalid="ignore"):     # a blown-up iterate (the steepness test refuses it)
+            disc = np.square(b) - a * (np.square(g).sum(axis=1) - 1.0)[:, None, :]
+            root = np.sqrt(np.maximum(disc, 0.0))
         real = disc >= 0.0
         t1 = np.where(real, (-b - root) / a, 0.0)
         t2 = np.where(real, (-b + root) / a, 0.0)

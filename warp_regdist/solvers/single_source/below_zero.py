@@ -1,0 +1,54 @@
+"""Distances below 0: the warning a converged column gets where it dips below -NEGATIVE of its max, and why."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ...errors import MeshWarning
+from ...geometry.mesh import boundary_vertices
+from ...geometry.obtuse_boundary import obtuse_boundary_sides
+from ...geometry.operators import corner_angle, largest_basis_angles
+
+__all__ = ["NEGATIVE", "warn_below_zero"]
+
+
+NEGATIVE = 1e-6
+"""A distance below -NEGATIVE x its column's max is reported (:func:`warn_below_zero`)."""
+
+
+def warn_below_zero(mesh, ops, u, converged, source_sets):
+    """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
+    converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
+    below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
+    be represented), which the intrinsic triangulation makes rare but not impossible; at a boundary vertex
+    of a mesh with boundary sides opposite obtuse angles it names ``split_boundary=True``."""
+    finite = np.where(np.isfinite(u), u, 0.0)
+    top = finite.max(axis=0)
+    low = finite.min(axis=0)
+    bad = np.flatnonzero((low < -NEGATIVE * np.maximum(top, 1e-300)) & converged)
+    if bad.size == 0:
+        return
+    j = bad[np.argmin(low[bad] / top[bad])]
+    i = int(np.argmin(finite[:, j]))
+    where = ""
+    if ops.basis.shape[1] == 3:
+        around = np.flatnonzero((ops.elements == i).any(axis=1))
+        at_source = [(corner_angle(ops.basis[e], c), int(ops.elements[e, c])) for e in around
+                     for c in range(3) if int(ops.elements[e, c]) in set(np.atleast_1d(source_sets[j]).tolist())]
+        if at_source:
+            angle, source = max(at_source)
+            where = f"; the triangle at that vertex and source {source} has a {angle:.0f}-degree angle at the source"
+        else:
+            angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
+            where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
+    remedy = "a finer or better shaped mesh near the sources avoids it"
+    if (mesh.element_dim == 2 and mesh.element_weights is None and i in set(boundary_vertices(mesh).tolist())
+            and obtuse_boundary_sides(mesh.vertices, mesh.elements)[0].size):
+        remedy = ("the vertex is on the boundary, which has sides opposite obtuse angles (negative weights no flip "
+                  "reaches): split_boundary=True (the default with the intrinsic triangulation) splits them")
+    warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
+                  f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
+                  f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "
+                  f"obtuse angle there must fall below 0; {remedy} (docs/real-meshes.md)", MeshWarning, stacklevel=4)
