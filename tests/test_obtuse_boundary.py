@@ -154,3 +154,15 @@ def test_warm_starts_polish_and_points_on_a_split_boundary():
     g = both.vjp(np.ones((n, 2)))
     assert g.vertices.shape == (n, 3) and g.refined_vertices.shape == (both.refined_mesh.n_vertices, 3)
     assert g.smoothed_distance.shape == (n, 2) and np.isfinite(g.vertices).all()
+
+
+def test_a_cut_mesh_warns_once_not_again_when_split():
+    # two obtuse triangles on a doubled side (vertices 0, 1 and 3, 4 at one place): the mesh warns of the cut,
+    # the solver splits both boundary sides without repeating it
+    V = np.array([[0, 0, 0], [2, 0, 0], [0.5, 0.3, 0], [0, 0, 0], [2, 0, 0], [0.5, -0.3, 0]], dtype=float)
+    with pytest.warns(wrd.MeshWarning, match="2 vertices lie where another vertex of the mesh lies"):
+        mesh = wrd.Mesh(V, [[0, 1, 2], [4, 3, 5]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wrd.MeshWarning)
+        solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    assert solver.split.n_inserted == 2

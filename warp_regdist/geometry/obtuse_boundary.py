@@ -199,7 +199,9 @@ def split_obtuse_boundary(mesh: Mesh) -> BoundarySplit:
         warnings.warn(f"expected the boundary splits to end, got {remaining} boundary sides still opposite an "
                       f"obtuse angle after {MAX_ROUNDS} rounds; the distance may fall below 0 beside them",
                       MeshWarning, stacklevel=2)
-    refined = mesh if param.size == 0 else Mesh(V, F)
+    with warnings.catch_warnings():      # the input's duplicate or cracked vertices warned when it was built
+        warnings.simplefilter("ignore", MeshWarning)
+        refined = mesh if param.size == 0 else Mesh(V, F)
     return BoundarySplit(refined, on_edge, param, parent, remaining, mesh)
 
 
