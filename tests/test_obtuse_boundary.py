@@ -166,3 +166,17 @@ def test_a_cut_mesh_warns_once_not_again_when_split():
         warnings.simplefilter("error", wrd.MeshWarning)
         solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
     assert solver.split.n_inserted == 2
+
+
+@pytest.mark.parametrize("k, alpha_hat, sources", [(12, 0.0, [72]), (61, 0.05, [55, 32]), (62, 0.05, [82])])
+def test_the_columns_that_dipped_below_zero_do_not_by_default(k, alpha_hat, sources):
+    # beetle-alt 112, woody 127 and 135 (measured: -0.20%, -0.88% and -0.07%, -1.17% of the max without the splits)
+    mesh = _scan(k)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wrd.MeshWarning)
+        unsplit = wrd.DistanceSolver(mesh, alpha_hat, workers=1, split_boundary=False).solve_many([[s] for s in sources])
+    assert np.all(unsplit.distance.min(axis=0) < -5e-4 * unsplit.distance.max(axis=0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wrd.MeshWarning)
+        res = wrd.DistanceSolver(mesh, alpha_hat, workers=1).solve_many([[s] for s in sources])
+    assert res.converged.all() and np.all(res.distance.min(axis=0) >= -1e-6 * res.distance.max(axis=0))

@@ -95,7 +95,7 @@ def test_a_lone_obtuse_source_triangle_reaches_the_side_lengths():
 def test_no_closed_decimation_of_the_public_meshes_goes_below_zero():
     """20 sources each on the closed decimations of tests/data/scan_decimations.npz up to 1,000 vertices, alpha_hat
     0 and 0.05: none below -1e-6 of its max, where |grad u| <= 1 on the source triangles leaves sources below 0.
-    (On meshes with boundary an obtuse boundary triangle, which no flip reaches, still can: docs/real-meshes.md.)"""
+    (On meshes with boundary an obtuse boundary triangle, which no flip reaches, still can unless split: test_obtuse_boundary.py.)"""
     from warp_regdist.geometry.mesh import boundary_vertices
 
     scans = np.load(DATA / "scan_decimations.npz")
