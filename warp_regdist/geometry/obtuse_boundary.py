@@ -99,15 +99,16 @@ def _sides(vertices, faces):
     (m, 3)) opposite an obtuse angle, and how their feet depend on T's lengths: (T, input face (s,),
     corner i of that face where the side starts (s,), foot parameter (s,) from corner i to corner i + 1,
     the three lengths' indices into ``T.lengths.ravel()`` (s, 3) (the side l_ab, then l_bc and l_ca),
-    d(foot) / d(those lengths) (s, 3), 0 where the foot is clamped). T is None on a tufted cover."""
+    d(foot) / d(those lengths) (s, 3), 0 where the foot is clamped). T is None without boundary and on a
+    tufted cover."""
     F = np.asarray(faces, dtype=np.int64)
-    T = intrinsic_delaunay(vertices, F)
-    empty = np.zeros(0, dtype=np.int64)
-    if T.tufted:
-        return None, empty, empty, np.zeros(0), np.zeros((0, 3), np.int64), np.zeros((0, 3))
     edge_id, _, _ = _edges(F)
+    count = np.bincount(edge_id)
+    empty = np.zeros(0, dtype=np.int64)
+    T = intrinsic_delaunay(vertices, F) if (count == 1).any() else None      # a closed mesh has no such sides
+    if T is None or T.tufted:
+        return None, empty, empty, np.zeros(0), np.zeros((0, 3), np.int64), np.zeros((0, 3))
     E = T.edges.shape[0]
-    count = np.bincount(edge_id, minlength=E)
     ids = T.length_ids.ravel()
     h = np.flatnonzero(ids < E)
     h = h[count[ids[h]] == 1]                           # boundary sides: never flipped, one halfedge each
