@@ -206,11 +206,12 @@ def split_obtuse_boundary(mesh: Mesh) -> BoundarySplit:
     return BoundarySplit(refined, on_edge, param, parent, remaining, mesh)
 
 
-def boundary_split(mesh, triangulation, split_boundary):
-    """The :class:`BoundarySplit` a solver computes on (None: the
-    mesh as it is) for ``split_boundary`` (True, False or None: True with the intrinsic triangulation)."""
+def boundary_split(mesh, triangulation, regularizer, split_boundary):
+    """The :class:`BoundarySplit` a solver computes on (None: the mesh as it is) for ``split_boundary``
+    (True, False or None: True with the intrinsic triangulation and the Dirichlet regularizer, whose
+    maximum principle the splits restore; the Hessian's minimizer dips below 0 on a boundary either way)."""
     if split_boundary is None:
-        split_boundary = triangulation == "intrinsic"
+        split_boundary = triangulation == "intrinsic" and regularizer == "dirichlet"
     elif not isinstance(split_boundary, (bool, np.bool_)):
         raise ValueError(f"expected split_boundary as True, False or None, got {split_boundary!r}")
     elif split_boundary and triangulation != "intrinsic":

@@ -47,7 +47,7 @@ def warn_below_zero(mesh, ops, u, converged, source_sets):
     if (mesh.element_dim == 2 and mesh.element_weights is None and i in set(boundary_vertices(mesh).tolist())
             and obtuse_boundary_sides(mesh.vertices, mesh.elements)[0].size):
         remedy = ("the vertex is on the boundary, which has sides opposite obtuse angles (negative weights no flip "
-                  "reaches): split_boundary=True (the default with the intrinsic triangulation) splits them")
+                  "reaches): split_boundary=True splits them (the default with the Dirichlet regularizer)")
     warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
                   f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
                   f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "

@@ -113,8 +113,8 @@ class DistanceSolver:
         foot of its altitude (:func:`~warp_regdist.split_obtuse_boundary`) and solve on the refined
         mesh: every cotangent weight is then >= 0, and the distance does not dip below 0 beside such
         sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's.
-        None: True with the intrinsic triangulation (a closed mesh, or one without such sides, is
-        solved as it is). The solver's ``split`` is the :class:`~warp_regdist.BoundarySplit` (None
+        None: True with the intrinsic triangulation and the Dirichlet regularizer (a closed mesh, or
+        one without such sides, is solved as it is). The solver's ``split`` is the :class:`~warp_regdist.BoundarySplit` (None
         without splits) and ``solve_mesh`` the mesh it computes on.
 
     Examples
@@ -155,7 +155,7 @@ class DistanceSolver:
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
         self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
-        self.split = boundary_split(mesh, triangulation, split_boundary)
+        self.split = boundary_split(mesh, triangulation, regularizer, split_boundary)
         self.solve_mesh = solve_mesh = mesh if self.split is None else self.split.mesh
         self.operators = ops = build_operators(solve_mesh, triangulation)
         self.regularizer = build_regularizer(solve_mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
