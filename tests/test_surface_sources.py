@@ -5,6 +5,8 @@ the solve on it against closed forms under refinement (flat disc, sphere equator
 an independent conic solve of the refined problem (tests/reference_solver.py).
 """
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -373,3 +375,14 @@ def test_curves_on_spot_keep_u_nonnegative_and_may_cross_themselves():
     eight = V[v] + 0.1 * (np.sin(2 * th)[:, None] * e1 + np.sin(th)[:, None] * e2)      # crosses itself once
     res = solver.solve(curve=wrd.surface_points(mesh, np.concatenate([eight, eight[:1]]), max_distance=0.1))
     assert res.converged
+
+
+def test_a_cut_mesh_warns_once_not_again_when_refined_at_points():
+    # two triangles on a doubled side: the mesh warns of the cut, a refinement at a point does not repeat it
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0], [1, 0, 0], [0, -1, 0]], dtype=float)
+    with pytest.warns(wrd.MeshWarning, match="2 vertices lie where another vertex of the mesh lies"):
+        mesh = wrd.Mesh(V, [[0, 1, 2], [4, 3, 5]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wrd.MeshWarning)
+        res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve(points=[(0, (0.2, 0.3, 0.5))])
+    assert res.refined_mesh.n_vertices > 6 and np.isinf(res.distance[3:]).all() and np.isfinite(res.distance[:3]).all()

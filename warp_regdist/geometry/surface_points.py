@@ -19,12 +19,13 @@ inside the face), so u = 0 at its vertices gives u = 0 all along it (u is linear
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..errors import MeshError
+from ..errors import MeshError, MeshWarning
 from ..tolerances import tolerances
 from .face_triangulation import FaceTriangulation
 from .mesh import Mesh, boundary_surface
@@ -297,7 +298,9 @@ def refine(mesh, faces, bary, chains=(), feet=None):
     parents = np.concatenate([np.flatnonzero(keep), np.asarray(parent, dtype=np.int64)])
     X = np.asarray(positions)
     try:
-        refined = Mesh(X, elements)
+        with warnings.catch_warnings():      # the input's duplicate or cracked vertices warned when it was built
+            warnings.simplefilter("ignore", MeshWarning)
+            refined = Mesh(X, elements)
     except MeshError as err:
         raise ValueError(f"expected surface points that refine the mesh into valid triangles, got: {err}") from None
     curves = []
