@@ -183,3 +183,22 @@ def test_the_columns_that_dipped_below_zero_do_not_by_default(k, alpha_hat, sour
         warnings.simplefilter("error", wrd.MeshWarning)
         res = wrd.DistanceSolver(mesh, alpha_hat, workers=1).solve_many([[s] for s in sources])
     assert res.converged.all() and np.all(res.distance.min(axis=0) >= -1e-6 * res.distance.max(axis=0))
+
+
+def test_the_boundary_as_source_stays_a_source_where_it_is_split():
+    # every inserted vertex lies on a boundary edge between two sources: it is a source too, so u = 0 along the
+    # whole boundary as without the splits (beetle-alt 112, 20 inserted)
+    mesh = _scan(12)
+    n = mesh.n_vertices
+    boundary = wrd.boundary_vertices(mesh).tolist()
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    inserted = list(range(n, solver.solve_mesh.n_vertices))
+    assert solver.source_mask(boundary)[0].tolist() == sorted(boundary) + inserted
+    assert solver.source_mask([0])[0].tolist() == [0]
+    res = solver.solve(boundary)
+    on_split = wrd.DistanceSolver(solver.solve_mesh, 0.05, workers=1)
+    np.testing.assert_array_equal(res.distance, on_split.solve(boundary + inserted).distance[:n])
+    loose = on_split.solve(boundary).distance                       # the inserted vertices free: above 0
+    assert loose[n:].max() > 0.01 * loose.max()
+    polished = res.polish()
+    assert polished.polish_change < 5e-3 and np.abs(polished.distance - res.distance).max() < 5e-3 * res.distance.max()

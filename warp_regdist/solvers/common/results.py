@@ -68,6 +68,12 @@ class DistanceResult(OptimizeResult):
         (n', k) on all of the split mesh's vertices."""
         object.__setattr__(self, "_problem", (problem, source_sets, surface, split, full))
 
+    def _on_surface(self, surface):
+        """Keep that this result's problem ran on the refined mesh of ``surface`` (a
+        :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources`)."""
+        problem, source_sets, _, split, full = vars(self)["_problem"]
+        self._keep(problem, source_sets, surface, split, full)
+
     def _smoothable(self, verb):
         """(problem, source sets, distance (n', k) on the problem's mesh, one column?, surface sources or
         None, boundary split or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb``

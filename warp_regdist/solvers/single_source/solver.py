@@ -179,9 +179,13 @@ class DistanceSolver:
                                 self.source_triangles, self.options if options is None else options)
 
     def source_mask(self, sources, column=0):
-        """Validated vertex ``sources`` of column ``column`` -> (indices (s,), reachable (n',) bool: the
-        vertices of ``solve_mesh`` in the sources' connected components)."""
-        return vertex_sources(sources, column, self.mesh.n_vertices, self.solve_mesh.components())
+        """Validated vertex ``sources`` of column ``column`` -> (indices (s,) of ``solve_mesh``, reachable (n',)
+        bool: its vertices in the sources' connected components). A vertex the boundary splits inserted on
+        an edge whose two ends are sources is one too: the splits do not change where u = 0."""
+        idx, reach = vertex_sources(sources, column, self.mesh.n_vertices, self.solve_mesh.components())
+        if self.split is not None:
+            idx = np.concatenate([idx, self.mesh.n_vertices + np.flatnonzero(np.isin(self.split.ends, idx).all(axis=1))])
+        return idx, reach
 
     # ------------------------------------------------------------------ public API
     def _initial_state(self, initial, k):
@@ -280,13 +284,14 @@ class DistanceSolver:
             callback = _printer(callback)
         if points is not None or curves is not None or closed:
             k = check_surface_batch(source_sets, points, curves, closed, initial)
-            sets = None if source_sets is None else [self.source_mask(s, j)[0] for j, s in enumerate(source_sets)]
+            sets = None if source_sets is None else [vertex_sources(s, j, self.mesh.n_vertices, self.mesh.components())[0]
+                                                     for j, s in enumerate(source_sets)]
             S = surface_sources(self.mesh, k, sets, points, curves, closed)
             refined = self._refined_solver(S)
             res = refined._solve_many([s.tolist() for s in S.sets], False, None, keep_duals, None, None, False,
                                       callback, options)
             if curves is None:   # vjp and polish on the refined mesh, pulled back through its new vertices
-                res._keep(refined.smoothing_problem(options), list(S.sets), S, *vars(res)["_problem"][3:])
+                res._on_surface(S)
             else:
                 res._keep(None, None)
             return refined_result(res, S, self.mesh.n_vertices, closed)
@@ -328,7 +333,7 @@ class DistanceSolver:
             {key: np.concatenate([p[key] for p in parts], axis=-1) for key in keys + ("duals",) * keep_duals},
             cg_iterations=sum(p.cg_iterations for p in parts), seconds=time.perf_counter() - t0,
             interrupted=any(p.interrupted for p in parts))
-        res._keep(self.smoothing_problem(options), source_sets)
+        res._keep(self.smoothing_problem(options), [src for src, _ in sets])
         stuck = self._ascend(res, sets, options)
         steep, gradient = steep_columns(self.source_triangles, res.distance, options.max_gradient,
                                        [src for src, _ in sets])
