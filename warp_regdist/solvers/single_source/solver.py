@@ -112,7 +112,8 @@ class DistanceSolver:
         With the intrinsic triangulation, split every boundary side opposite an obtuse angle at the
         foot of its altitude (:func:`~warp_regdist.split_obtuse_boundary`) and solve on the refined
         mesh: every cotangent weight is then >= 0, and the distance does not dip below 0 beside such
-        sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's.
+        sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's;
+        a new vertex on an edge between two sources is a source.
         None: True with the intrinsic triangulation and the Dirichlet regularizer (a closed mesh, or
         one without such sides, is solved as it is). The solver's ``split`` is the :class:`~warp_regdist.BoundarySplit` (None
         without splits) and ``solve_mesh`` the mesh it computes on.
