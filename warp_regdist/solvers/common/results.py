@@ -38,7 +38,8 @@ class DistanceResult(OptimizeResult):
         True when Ctrl-C stopped the solve: the columns not yet converged hold their current
         iterate and ``converged`` False.
     duals : (m, 3) or (m, 3, k) ndarray of float64
-        The per-element multipliers y of the gradient constraint at the returned iterate (always
+        The per-element multipliers y of the gradient constraint at the returned iterate, m the
+        elements of the mesh solved on (``DistanceSolver.solve_mesh``: with the boundary split) (always
         from :meth:`~warp_regdist.DistanceSolver.solve`, from :meth:`~warp_regdist.DistanceSolver.solve_many` with
         ``keep_duals=True``); with ``penalty`` (rho / L, float or (k,)) they make the result a
         warm start (``initial=``).
