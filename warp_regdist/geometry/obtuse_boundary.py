@@ -140,16 +140,6 @@ def obtuse_boundary_sides(vertices, faces):
     return _sides(vertices, faces)[1:4]
 
 
-def _check_triangles(mesh):
-    if not isinstance(mesh, Mesh):
-        raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
-    if mesh.element_dim != 2:
-        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh")
-    if mesh.element_weights is not None:
-        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a PointCloud (its triangles are "
-                         "local covers of the points, not a surface with a boundary)")
-
-
 def _split_rounds(mesh):
     """Rounds of splits of ``mesh``: (vertices (n', 3), faces (m', 3), per inserted vertex its input edge
     (k, 2) and parameter (k,), parent faces (m',), rounds, remaining), each round (T, vertices before it,
@@ -194,7 +184,13 @@ def split_obtuse_boundary(mesh: Mesh) -> BoundarySplit:
     triangulation split at the altitude's foot (:mod:`module docs <warp_regdist.geometry.obtuse_boundary>`);
     distances on ``result.mesh``, restricted to its first ``mesh.n_vertices`` rows, are per input vertex.
     A closed mesh, or one without such sides, comes back as it is (k = 0)."""
-    _check_triangles(mesh)
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
+    if mesh.element_dim != 2:
+        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a tetrahedral mesh")
+    if mesh.element_weights is not None:
+        raise ValueError("expected a triangle mesh for split_obtuse_boundary, got a PointCloud (its triangles are "
+                         "local covers of the points, not a surface with a boundary)")
     V, F, on_edge, param, parent, _, remaining = _split_rounds(mesh)
     if remaining:
         warnings.warn(f"expected the boundary splits to end, got {remaining} boundary sides still opposite an "

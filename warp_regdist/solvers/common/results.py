@@ -75,6 +75,13 @@ class DistanceResult(OptimizeResult):
         problem, source_sets, _, split, full = vars(self)["_problem"]
         self._keep(problem, source_sets, surface, split, full)
 
+    def _on_split(self, split):
+        """Keep that this result's problem ran on ``split.mesh`` (a :class:`~warp_regdist.BoundarySplit`) and
+        report ``distance`` on the input's vertices only."""
+        problem, source_sets, surface, _, _ = vars(self)["_problem"]
+        self._keep(problem, source_sets, surface, split, self.distance)
+        self.distance = self.distance[:split.original.n_vertices]
+
     def _smoothable(self, verb):
         """(problem, source sets, distance (n', k) on the problem's mesh, one column?, surface sources or
         None, boundary split or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb``

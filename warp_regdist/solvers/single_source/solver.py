@@ -115,8 +115,9 @@ class DistanceSolver:
         sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's;
         a new vertex on an edge between two sources is a source.
         None: True with the intrinsic triangulation and the Dirichlet regularizer (a closed mesh, or
-        one without such sides, is solved as it is). The solver's ``split`` is the :class:`~warp_regdist.BoundarySplit` (None
-        without splits) and ``solve_mesh`` the mesh it computes on.
+        one without such sides, is solved as it is). The solver's ``split`` is the
+        :class:`~warp_regdist.BoundarySplit` (None without splits) and ``solve_mesh`` the mesh it
+        computes on.
 
     Examples
     --------
@@ -349,8 +350,7 @@ class DistanceSolver:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(capped)} of {k} source sets", ConvergenceWarning, stacklevel=3)
         if self.split is not None:   # the inserted vertices are no outputs; vjp and polish keep them
-            res._keep(*vars(res)["_problem"][:3], self.split, res.distance)
-            res.distance = res.distance[:self.mesh.n_vertices]
+            res._on_split(self.split)
         return res
 
     def _ascend(self, res, sets, options):
