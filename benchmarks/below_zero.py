@@ -6,11 +6,10 @@ Every mesh of DIR (as in benchmarks/real_meshes.py: loaded with ``repair=True``,
 component, ``--max-vertices``) is decimated to each --decimate size by fast-simplification, and
 every vertex (at most --sources of them, spread by farthest-point sampling) is a source of its own
 column of ``solve_many``, at alpha_hat 0 and 0.05, in three problems: the default (the intrinsic
-Delaunay triangulation with its boundary sides opposite obtuse angles split, the source triangles'
+Delaunay triangulation with the obtuse angles it leaves refined away, the source triangles'
 side-length bound), the intrinsic triangulation with |grad u| <= 1 on the source triangles too, and
-the paper's (the mesh's own triangles, |grad u| <= 1); where the mesh has boundary sides opposite
-obtuse angles, also the default without the splits (``split_boundary=False``, triangulation
-"intrinsic, unsplit").
+the paper's (the mesh's own triangles, |grad u| <= 1); where the refinement inserts vertices, also
+the default without it (``refine_obtuse=False``, triangulation "intrinsic, unrefined").
 A column is *below zero* when its min is under -1e-6 of its max (the threshold of the solvers'
 warning). The table gives per mesh, alpha_hat and problem the columns below zero, the lowest value
 (% of that column's max) and the median ADMM iterations.
@@ -33,7 +32,7 @@ from report import markdown_table, write_csv  # noqa: E402
 RESULTS = os.path.join(HERE, "results", "below_zero.csv")
 BELOW = -1e-6
 PROBLEMS = (("intrinsic", "edges"), ("intrinsic", "gradient"), ("mesh", "gradient"))   # (triangulation, source_triangles)
-UNSPLIT = "intrinsic, unsplit"
+UNREFINED = "intrinsic, unrefined"
 
 
 def run(folder, sizes, k, max_vertices, names):
@@ -46,12 +45,12 @@ def run(folder, sizes, k, max_vertices, names):
             continue
         sources = list(range(mesh.n_vertices)) if mesh.n_vertices <= k else spread(mesh, k)
         obtuse = int(np.sum(largest_angles(mesh.vertices, mesh.elements) > 120))
-        split = wrd.split_obtuse_boundary(mesh)
-        problems = PROBLEMS + (((UNSPLIT, "edges"),) if split.n_inserted else ())
+        refined = wrd.refine_obtuse_angles(mesh)
+        problems = PROBLEMS + (((UNREFINED, "edges"),) if refined.n_inserted else ())
         for alpha_hat in (0.0, 0.05):
             for tri, rule in problems:
-                solver = wrd.DistanceSolver(mesh, alpha_hat, triangulation="intrinsic" if tri == UNSPLIT else tri,
-                                            source_triangles=rule, split_boundary=False if tri == UNSPLIT else None)
+                solver = wrd.DistanceSolver(mesh, alpha_hat, triangulation="intrinsic" if tri == UNREFINED else tri,
+                                            source_triangles=rule, refine_obtuse=False if tri == UNREFINED else None)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     res = solver.solve_many([[s] for s in sources])

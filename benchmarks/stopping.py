@@ -133,7 +133,7 @@ def run_single(cache):
         V, F = mesh.vertices, mesh.elements
         size = rs.face_geometry(V, F)[0].sum() ** (1.0 / mesh.element_dim)     # sqrt(area), cube root of volume
         solver = wrd.DistanceSolver(mesh, alpha_hat, device="cpu", workers=1)
-        on = solver.solve_mesh                                     # with its boundary split (the default)
+        on = solver.solve_mesh                                     # with its obtuse angles refined (the default)
         exact = cached(cache, f"single {name} {on.n_vertices} {label} {alpha_hat}",
                        lambda: rs.solve_reference(on.vertices, on.elements, sources, alpha_hat * size))[:mesh.n_vertices]
         row = dict(solver="single", mesh=name, n=mesh.n_vertices, sources=label, alpha_hat=alpha_hat)

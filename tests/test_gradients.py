@@ -52,8 +52,8 @@ def cube_mesh():
 def smoothed_value(mesh, alpha_hat, sources, b, start):
     """b . u_mu of the smoothed problem on ``mesh`` (Newton from ``start``)."""
     solver = wrd.DistanceSolver(mesh, alpha_hat, workers=1)
-    if solver.split is not None:            # on the mesh with its boundary split, read on the input's vertices
-        start = solver.split.interpolation() @ start
+    if solver.refinement is not None:       # on the refined mesh, from its own ADMM solve; read on the input's vertices
+        start = wrd.DistanceSolver(solver.solve_mesh, alpha_hat, workers=1).solve(sources).distance
     free = np.ones(solver.solve_mesh.n_vertices, dtype=bool)
     free[sources] = False
     problem = SmoothedProblem(solver.operators, solver.alpha, solver.options.gradient_smoothing, free,
@@ -148,7 +148,7 @@ def test_smoothed_minimizer_is_near_the_conic_solvers():
     mesh = spot955()
     V, F = mesh.vertices, mesh.elements
     exact = rs.solve_reference(V, F, [0], 0.05 * np.sqrt(rs.face_geometry(V, F)[0].sum()))
-    res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve([0])
+    res = wrd.DistanceSolver(mesh, 0.05, workers=1, refine_obtuse=False).solve([0])     # the reference's problem
     g = res.vjp(np.ones(mesh.n_vertices))
     assert np.abs(g.smoothed_distance - exact).max() <= 2e-4 * exact.max()
     assert g.smoothing_change == pytest.approx(np.abs(g.smoothed_distance - res.distance).max() / res.distance.max())
@@ -286,7 +286,7 @@ def test_hessian_on_its_pattern_equals_the_sparse_products(case):
     import scipy.sparse as sp
 
     mesh = {"spot955": spot955, "cube": cube_mesh}[case]()
-    solver = wrd.DistanceSolver(mesh, 0.05, workers=1)
+    solver = wrd.DistanceSolver(mesh, 0.05, workers=1, refine_obtuse=False if mesh.element_dim == 2 else None)
     free = np.ones(mesh.n_vertices, dtype=bool)
     free[[0, 7, 11]] = False
     problem = SmoothedProblem(solver.operators, solver.alpha, 1e-6, free)
@@ -382,7 +382,7 @@ def _refined_smoothed_value(mesh, alpha_hat, faces, bary, b, start):
     from warp_regdist.geometry.surface_points import refine
 
     R = (refine if mesh.element_dim == 2 else refine_boundary)(mesh, np.asarray(faces), np.asarray(bary))
-    solver = wrd.DistanceSolver(R.mesh, alpha_hat, workers=1)
+    solver = wrd.DistanceSolver(R.mesh, alpha_hat, workers=1, refine_obtuse=False)
     free = np.ones(R.mesh.n_vertices, dtype=bool)
     free[R.point_vertices] = False
     u = np.zeros(R.mesh.n_vertices)
@@ -403,7 +403,8 @@ def test_vjp_through_point_sources_matches_central_differences(case):
     b = rng.standard_normal(mesh.n_vertices)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", wrd.MeshWarning)
-        res = wrd.DistanceSolver(mesh, 0.05, workers=1).solve(points=list(zip(faces, bary)))
+        # the points' refinement alone (the obtuse refinement's own gradient: test_obtuse_refinement.py)
+        res = wrd.DistanceSolver(mesh, 0.05, workers=1, refine_obtuse=False).solve(points=list(zip(faces, bary)))
     g = res.vjp(b)
     assert g.points.shape == (3, 3) and g.vertices.shape == (mesh.n_vertices, 3)
     assert res.refined_mesh.n_vertices > mesh.n_vertices + 3         # the feet were inserted too

@@ -78,11 +78,18 @@ def test_the_derivative_of_the_flipped_lengths_is_the_finite_difference(cat80):
 def test_single_source_matches_the_conic_solve_on_libigls_triangulation(cat80, alpha_hat):
     V, F = cat80.vertices, cat80.elements
     alpha = alpha_hat * np.sqrt(rs.face_geometry(V, F)[0].sum())
-    res = wrd.DistanceSolver(cat80, alpha_hat, options=TIGHT).solve([3])
+    res = wrd.DistanceSolver(cat80, alpha_hat, options=TIGHT, refine_obtuse=False).solve([3])
     expected = rs.solve_reference(V, F, [3], alpha)
     assert res.converged and np.abs(res.distance - expected).max() <= 1e-3 * expected.max()
     on_the_mesh = rs.solve_reference(V, F, [3], alpha, triangulation="mesh")
     assert np.abs(on_the_mesh - expected).max() > 1e-2 * expected.max()       # a different discrete problem
+    # the default refines the obtuse angles away: libigl's triangulation of the refined mesh, read on the input's
+    solver = wrd.DistanceSolver(cat80, alpha_hat, options=TIGHT)
+    refined = solver.solve_mesh
+    assert refined.n_vertices > cat80.n_vertices
+    expected = rs.solve_reference(refined.vertices, refined.elements, [3], alpha)[:cat80.n_vertices]
+    res = solver.solve([3])
+    assert res.converged and np.abs(res.distance - expected).max() <= 1e-3 * expected.max()
 
 
 def test_all_pairs_matches_the_conic_solve_on_libigls_triangulation():
@@ -101,7 +108,8 @@ def test_all_pairs_matches_the_conic_solve_on_libigls_triangulation():
 
 
 def test_gradients_go_through_the_flips(cat80):
-    solver = wrd.DistanceSolver(cat80, 0.1, workers=1)
+    # the flips alone (through the obtuse refinement too: test_obtuse_refinement.py, test_gradients.py)
+    solver = wrd.DistanceSolver(cat80, 0.1, workers=1, refine_obtuse=False)
     assert solver.operators.intrinsic.flip_count == 42
     rng = np.random.default_rng(1)
     b = rng.random(cat80.n_vertices)
@@ -109,7 +117,7 @@ def test_gradients_go_through_the_flips(cat80):
     D = rng.standard_normal(cat80.vertices.shape)
 
     def value(h):
-        moved = wrd.DistanceSolver(wrd.Mesh(cat80.vertices + h * D, cat80.elements), 0.1, workers=1)
+        moved = wrd.DistanceSolver(wrd.Mesh(cat80.vertices + h * D, cat80.elements), 0.1, workers=1, refine_obtuse=False)
         return b @ moved.solve([0]).polish().distance
 
     fd = (value(1e-7) - value(-1e-7)) / 2e-7

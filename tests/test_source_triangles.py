@@ -88,14 +88,15 @@ def test_a_lone_obtuse_source_triangle_reaches_the_side_lengths():
     mesh = wrd.Mesh(V, F)
     u = wrd.DistanceSolver(mesh, 0.0, workers=1).solve([0]).distance
     np.testing.assert_allclose(u, [0.0, 1.0, 1.0], atol=2e-3)
-    paper = wrd.DistanceSolver(mesh, 0.0, workers=1, source_triangles="gradient", split_boundary=False).solve([0]).distance
+    paper = wrd.DistanceSolver(mesh, 0.0, workers=1, source_triangles="gradient", refine_obtuse=False).solve([0]).distance
     assert paper[1] + paper[2] == pytest.approx(2.0 * np.cos(np.radians(75.0)), abs=2e-3)
 
 
 def test_no_closed_decimation_of_the_public_meshes_goes_below_zero():
     """20 sources each on the closed decimations of tests/data/scan_decimations.npz up to 1,000 vertices, alpha_hat
     0 and 0.05: none below -1e-6 of its max, where |grad u| <= 1 on the source triangles leaves sources below 0.
-    (On meshes with boundary an obtuse boundary triangle, which no flip reaches, still can unless split: test_obtuse_boundary.py.)"""
+    (Obtuse angles the flips leave, beside a boundary or far above 90 degrees, still can unless refined:
+    test_obtuse_refinement.py.)"""
     from warp_regdist.geometry.mesh import boundary_vertices
 
     scans = np.load(DATA / "scan_decimations.npz")

@@ -13,7 +13,7 @@ from .output.export import save_vtu
 from .geometry.line_field import line_field
 from .errors import CheckpointWarning, ConvergenceWarning, MeshError, MeshWarning, WorkerError, WriteError
 from .geometry.mesh import Mesh, boundary_faces, boundary_vertices
-from .geometry.obtuse_boundary import BoundarySplit, split_obtuse_boundary
+from .geometry.obtuse_refinement import ObtuseRefinement, refine_obtuse_angles
 from .geometry.mesh_io import data_path, load_mesh
 from .geometry.repair import Repair, merge_duplicate_vertices, repair_mesh, split_components
 from .geometry.surface_points import surface_points
@@ -47,7 +47,7 @@ def __getattr__(name):
 
 
 __all__ = ["Mesh", "MeshError", "MeshWarning", "merge_duplicate_vertices", "repair_mesh", "Repair",
-           "split_components", "load_mesh", "data_path", "boundary_vertices", "split_obtuse_boundary", "BoundarySplit", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
+           "split_components", "load_mesh", "data_path", "boundary_vertices", "refine_obtuse_angles", "ObtuseRefinement", "surface_points", "boundary_faces", "PointCloud", "Operators", "build_operators",
            "DistanceSolver", "DistanceResult", "Gradients", "ConvergenceWarning", "REGULARIZERS", "line_field",
            "all_pairs", "AllPairsSolver", "AllPairsResult", "distance_matrix", "save_vtu", "metrics",
            "SolverOptions", "AllPairsOptions", "Tolerances", "tolerances", "PenaltySchedule", "tetrahedralize", "WorkerError", "WriteError", "CheckpointWarning", "show", "Progress", "StopTest", "Hierarchy",

@@ -37,7 +37,8 @@ from scipy.sparse import csgraph
 
 from ..errors import MeshError
 
-__all__ = ["IntrinsicTriangulation", "intrinsic_delaunay", "flat_layout", "flat_layout_gradient", "length_gradient"]
+__all__ = ["IntrinsicTriangulation", "intrinsic_delaunay", "flat_layout", "flat_layout_gradient", "length_gradient",
+           "id_gradient"]
 
 _MAX_ROUNDS = 100_000
 
@@ -60,6 +61,14 @@ class IntrinsicTriangulation:
     flips : list of (ids (k,), parents (k, 5), partials (k, 5))
         One entry per round: the new lengths' ids, the five ids each was computed from
         (l_ab, l_bc, l_ca, l_ad, l_db of its quad) and d(new length) / d(each of them).
+    flipped_faces : list of (f (k,), i (k,), g (k,), j (k,), vertices (k, 4))
+        Per round, the two faces of each flip, the corners where its old edge a b started in them
+        (a b c at corners i, i + 1, i + 2 of f, b a d at j, j + 1, j + 2 of g; afterwards f is a d c and
+        g is b c d) and the vertices a, b, c, d.
+    id_lengths : (E + flips,) float64
+        The length of every variable id.
+    twin : (3 m,) int64
+        The halfedge on the other side of each halfedge's edge (-1 on the boundary).
     area_weight : float
         What each face's area counts in the operators: 1, or 1/2 on a tufted cover (each input face
         is there twice).
@@ -71,6 +80,9 @@ class IntrinsicTriangulation:
     edges: np.ndarray
     flips: list
     area_weight: float = 1.0
+    flipped_faces: list = dataclasses.field(default_factory=list)
+    id_lengths: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    twin: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def flip_count(self):
@@ -216,7 +228,7 @@ def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
     origin = F.ravel().copy()
     L = np.linalg.norm(V[np.roll(F, -1, axis=1)] - V[F], axis=2).ravel()
     next_id = edges.shape[0]
-    flips = []
+    flips, flipped_faces, id_lengths = [], [], [np.linalg.norm(V[edges[:, 1]] - V[edges[:, 0]], axis=1)]
     for _ in range(_MAX_ROUNDS):
         h = np.flatnonzero(twin > np.arange(3 * m))                  # every interior edge once
         t = twin[h]
@@ -244,6 +256,8 @@ def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
         new_ids = next_id + np.arange(h.size)
         next_id += h.size
         flips.append((new_ids, np.stack([ids[h], ids[hb], ids[hc], ids[ha], ids[hd]], axis=1), partials))
+        flipped_faces.append((f, i, g, j, np.stack([origin[h], origin[t], c, d], axis=1)))
+        id_lengths.append(new_length)
         # new faces (a, d, c) in f and (b, c, d) in g: where each kept halfedge moves
         relocate = np.arange(3 * m)
         relocate[ha], relocate[hc], relocate[hb], relocate[hd] = 3 * f, 3 * f + 2, 3 * g, 3 * g + 2
@@ -268,7 +282,8 @@ def intrinsic_delaunay(vertices, faces, tolerance=1e-10):
         raise MeshError(f"expected finite intrinsic edge lengths, got a non-finite one in the triangle on vertices "
                         f"{sorted(set(origin[3 * bad:3 * bad + 3].tolist()))} after the flips; triangulation='mesh' "
                         "solves on the mesh's own triangles")
-    return IntrinsicTriangulation(origin.reshape(m, 3), L.reshape(m, 3), ids.reshape(m, 3), edges, flips, area_weight)
+    return IntrinsicTriangulation(origin.reshape(m, 3), L.reshape(m, 3), ids.reshape(m, 3), edges, flips, area_weight,
+                                  flipped_faces, np.concatenate(id_lengths), twin)
 
 
 def flat_layout(lengths):
@@ -301,9 +316,15 @@ def length_gradient(triangulation, vertices, grad_lengths):
     """dL/dx (n, 3) from dL/d(lengths) (m, 3) of ``triangulation`` (built from ``vertices``): back
     through the flips, newest first, to the input's edge lengths, then to the positions."""
     T = triangulation
-    size = T.edges.shape[0] + sum(ids.size for ids, _, _ in T.flips)
-    g = np.zeros(size)
+    g = np.zeros(T.edges.shape[0] + sum(ids.size for ids, _, _ in T.flips))
     np.add.at(g, T.length_ids.ravel(), np.asarray(grad_lengths, dtype=np.float64).ravel())
+    return id_gradient(T, vertices, g)
+
+
+def id_gradient(triangulation, vertices, grad_ids):
+    """dL/dx (n, 3) from dL/d(the length of every variable id) (E + flips,) of ``triangulation``."""
+    T = triangulation
+    g = np.array(grad_ids, dtype=np.float64)
     for ids, parents, partials in reversed(T.flips):
         np.add.at(g, parents.ravel(), (g[ids][:, None] * partials).ravel())
     V = np.asarray(vertices, dtype=np.float64)
@@ -315,3 +336,4 @@ def length_gradient(triangulation, vertices, grad_lengths):
     np.add.at(out, a, ge)
     np.add.at(out, b, -ge)
     return out
+

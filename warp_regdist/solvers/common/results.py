@@ -39,7 +39,7 @@ class DistanceResult(OptimizeResult):
         iterate and ``converged`` False.
     duals : (m, 3) or (m, 3, k) ndarray of float64
         The per-element multipliers y of the gradient constraint at the returned iterate, m the
-        elements of the mesh solved on (``DistanceSolver.solve_mesh``: with the boundary split) (always
+        elements of the mesh solved on (``DistanceSolver.solve_mesh``: with its obtuse angles refined) (always
         from :meth:`~warp_regdist.DistanceSolver.solve`, from :meth:`~warp_regdist.DistanceSolver.solve_many` with
         ``keep_duals=True``); with ``penalty`` (rho / L, float or (k,)) they make the result a
         warm start (``initial=``).
@@ -60,33 +60,33 @@ class DistanceResult(OptimizeResult):
         The result with the distance of the barrier-smoothed problem, within about 1e-4 of exact.
     """
 
-    def _keep(self, problem, source_sets, surface=None, split=None, full=None):
+    def _keep(self, problem, source_sets, surface=None, refinement=None, full=None):
         """Keep what :meth:`vjp` and :meth:`polish` need (an attribute, not a key): the
         :class:`~warp_regdist.solvers.single_source.gradients.SmoothingProblem` of the solve (None: not
         differentiable), the vertex source sets, for points the
         :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources` whose refined mesh it ran on,
-        and where the solver split the boundary its :class:`~warp_regdist.BoundarySplit` with the distance
-        (n', k) on all of the split mesh's vertices."""
-        object.__setattr__(self, "_problem", (problem, source_sets, surface, split, full))
+        and where the solver refined the mesh its :class:`~warp_regdist.ObtuseRefinement` with the distance
+        (n', k) on all of the refined mesh's vertices."""
+        object.__setattr__(self, "_problem", (problem, source_sets, surface, refinement, full))
 
     def _on_surface(self, surface):
         """Keep that this result's problem ran on the refined mesh of ``surface`` (a
         :class:`~warp_regdist.solvers.single_source.sources.SurfaceSources`)."""
-        problem, source_sets, _, split, full = vars(self)["_problem"]
-        self._keep(problem, source_sets, surface, split, full)
+        problem, source_sets, _, refinement, full = vars(self)["_problem"]
+        self._keep(problem, source_sets, surface, refinement, full)
 
-    def _on_split(self, split):
-        """Keep that this result's problem ran on ``split.mesh`` (a :class:`~warp_regdist.BoundarySplit`) and
+    def _on_refinement(self, refinement):
+        """Keep that this result's problem ran on ``refinement.mesh`` (a :class:`~warp_regdist.ObtuseRefinement`) and
         report ``distance`` on the input's vertices only."""
         problem, source_sets, surface, _, _ = vars(self)["_problem"]
-        self._keep(problem, source_sets, surface, split, self.distance)
-        self.distance = self.distance[:split.original.n_vertices]
+        self._keep(problem, source_sets, surface, refinement, self.distance)
+        self.distance = self.distance[:refinement.original.n_vertices]
 
     def _smoothable(self, verb):
         """(problem, source sets, distance (n', k) on the problem's mesh, one column?, surface sources or
-        None, boundary split or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb``
+        None, refinement or None) after the checks that :meth:`vjp` and :meth:`polish` share (``verb``
         names the operation in their messages)."""
-        problem, source_sets, surface, split, full = vars(self).get("_problem", (None,) * 5)
+        problem, source_sets, surface, refinement, full = vars(self).get("_problem", (None,) * 5)
         if problem is None:
             raise ValueError(f"expected a result of DistanceSolver.solve or solve_many from vertices or points to "
                              f"{verb}, got one from curves (or a copy)")
@@ -99,9 +99,9 @@ class DistanceResult(OptimizeResult):
                              f"{converged.size} columns not converged (interrupted, or max_iterations reached)")
         distance = np.asarray(self.distance if surface is None else self.refined_distance)
         one = distance.ndim == 1
-        if split is not None:
+        if refinement is not None:
             distance = np.asarray(full).reshape(full.shape[0], -1)
-        return problem, source_sets, distance[:, None] if distance.ndim == 1 else distance, one, surface, split
+        return problem, source_sets, distance[:, None] if distance.ndim == 1 else distance, one, surface, refinement
 
     def vjp(self, grad_u):
         """Vector-Jacobian product: the gradients of a loss L with dL/ddistance = ``grad_u``
@@ -120,7 +120,7 @@ class DistanceResult(OptimizeResult):
         """
         from ..single_source.gradients import vector_jacobian_product
 
-        problem, source_sets, distance, one, surface, split = self._smoothable("differentiate")
+        problem, source_sets, distance, one, surface, refinement = self._smoothable("differentiate")
         n = np.asarray(self.distance).shape[0]
         try:
             grad = None if isinstance(grad_u, (str, bytes)) else np.asarray(grad_u, dtype=float)
@@ -134,12 +134,14 @@ class DistanceResult(OptimizeResult):
         if not np.all(np.isfinite(grad)):
             raise ValueError("expected finite grad_u, got NaN or inf")
         grad = grad[:, None] if one else grad
-        # the new vertices of the refined (or split) mesh are no outputs: zero
+        # the new vertices of the refined mesh are no outputs: zero
         grad = np.concatenate([grad, np.zeros((distance.shape[0] - n, grad.shape[1]))])
         out = vector_jacobian_product(problem, distance, source_sets, grad)
-        if split is not None:        # back through the boundary splits to the mesh they split
-            out["vertices"] = split.vjp(out.vertices)
-            out["smoothed_distance"] = out.smoothed_distance[:split.original.n_vertices]
+        if refinement is not None:        # back through the refinement to the input mesh
+            kept = refinement.original.n_vertices
+            out["vertices"] = refinement.vjp(out.vertices)
+            out["smoothed_distance"] = out.smoothed_distance[:kept]
+            out["smoothing_change"] = float(np.max(_change(out.smoothed_distance, distance[:kept])))
         if surface is not None:
             from ...geometry.surface_points import refinement_vjp
 
@@ -166,7 +168,7 @@ class DistanceResult(OptimizeResult):
         from ..single_source.gradients import smoothed_solution
 
         t0 = time.perf_counter()
-        problem, source_sets, distance, one, surface, split = self._smoothable("polish")
+        problem, source_sets, distance, one, surface, refinement = self._smoothable("polish")
         out = DistanceResult(self)
         out._keep(*vars(self)["_problem"])
         del out["error_estimate"]
@@ -174,15 +176,26 @@ class DistanceResult(OptimizeResult):
                      for j in range(distance.shape[1])]
         polished = np.stack([x.distance for x in solutions], axis=1)
         change = np.array([x.change for x in solutions])
-        if split is not None:
+        if refinement is not None:        # the new vertices are no outputs: the change on the input's
             out._keep(*vars(self)["_problem"][:4], polished)
-            polished = polished[:split.original.n_vertices]
+            polished = polished[:refinement.original.n_vertices]
+            change = _change(polished, distance[:refinement.original.n_vertices])
         if surface is not None:
             out["refined_distance"] = polished[:, 0] if one else polished
             polished = polished[:np.asarray(self.distance).shape[0]]
         out["distance"], out["polish_change"] = (polished[:, 0], change[0].item()) if one else (polished, change)
         out["seconds"] = self.seconds + time.perf_counter() - t0
         return out
+
+
+def _change(new, old):
+    """max |new - old| / max |old| per column of (n, k) or (n,) distances, 0 where old is 0; (k,) or ()."""
+    new, old = np.asarray(new, dtype=float), np.asarray(old, dtype=float)
+    new, old = (new[:, None], old[:, None]) if old.ndim == 1 else (new, old)
+    finite = np.isfinite(old) & np.isfinite(new)
+    top = np.where(finite, np.abs(old), 0.0).max(axis=0)
+    moved = np.where(finite, np.abs(new - old), 0.0).max(axis=0)
+    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 0.0)
 
 
 RESIDUAL_NAMES = ("r1", "r2", "s1", "s2", "rx1", "rx2", "sx")

@@ -7,8 +7,7 @@ import warnings
 import numpy as np
 
 from ...errors import MeshWarning
-from ...geometry.mesh import boundary_vertices
-from ...geometry.obtuse_boundary import obtuse_boundary_sides
+from ...geometry.obtuse_refinement import obtuse_angles
 from ...geometry.operators import corner_angle, largest_basis_angles
 
 __all__ = ["NEGATIVE", "warn_below_zero"]
@@ -22,8 +21,8 @@ def warn_below_zero(mesh, ops, u, converged, source_sets):
     """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
     converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
     below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
-    be represented), which the intrinsic triangulation makes rare but not impossible; at a boundary vertex
-    of a mesh with boundary sides opposite obtuse angles it names ``split_boundary=True``."""
+    be represented), which the intrinsic triangulation and its refinement make rare but not impossible; on
+    a mesh with obtuse angles the refinement would remove it names ``refine_obtuse=True``."""
     finite = np.where(np.isfinite(u), u, 0.0)
     top = finite.max(axis=0)
     low = finite.min(axis=0)
@@ -44,10 +43,10 @@ def warn_below_zero(mesh, ops, u, converged, source_sets):
             angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
             where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
     remedy = "a finer or better shaped mesh near the sources avoids it"
-    if (mesh.element_dim == 2 and mesh.element_weights is None and i in set(boundary_vertices(mesh).tolist())
-            and obtuse_boundary_sides(mesh.vertices, mesh.elements)[0].size):
-        remedy = ("the vertex is on the boundary, which has sides opposite obtuse angles (negative weights no flip "
-                  "reaches): split_boundary=True splits them (the default with the Dirichlet regularizer)")
+    if mesh.element_dim == 2 and mesh.element_weights is None and obtuse_angles(mesh.vertices, mesh.elements)[0].size:
+        remedy = ("the mesh has obtuse angles that no flip removes (boundary sides opposite obtuse angles, angles "
+                  "above 120 degrees): refine_obtuse=True inserts vertices there (the default with the Dirichlet "
+                  "regularizer)")
     warnings.warn(f"{bad.size} of {u.shape[1]} source sets have distances below 0, down to "
                   f"{100 * low[j] / top[j]:.3g}% of the max distance at vertex {i} (source set {j}: "
                   f"{[int(x) for x in np.atleast_1d(source_sets[j])[:4]]}{where}): a linear distance from a source across an "

@@ -30,7 +30,7 @@ import warp as wp
 from ...arguments import check_weight, parse_device, parse_workers
 from ...errors import ConvergenceWarning
 from ...geometry.mesh import Mesh
-from ...geometry.obtuse_boundary import boundary_split
+from ...geometry.obtuse_refinement import obtuse_refinement
 from ...geometry.operators import build_operators, choose_triangulation
 from ...geometry.regularizers import build_regularizer
 from ...kernels.lanes import SCALARS, lane_type, lane_width
@@ -108,15 +108,15 @@ class DistanceSolver:
         unit-speed bound on such a triangle takes u below 0 next to s where its angle at s is obtuse),
         "gradient" keeps |grad u| <= 1 there as everywhere (the paper's problem). None: "edges" on
         triangle meshes, "gradient" on tetrahedra (docs/method.md section 2).
-    split_boundary : bool or None
-        With the intrinsic triangulation, split every boundary side opposite an obtuse angle at the
-        foot of its altitude (:func:`~warp_regdist.split_obtuse_boundary`) and solve on the refined
-        mesh: every cotangent weight is then >= 0, and the distance does not dip below 0 beside such
-        sides (docs/real-meshes.md). Outputs stay per input vertex; ``duals`` are the refined mesh's;
-        a new vertex on an edge between two sources is a source.
-        None: True with the intrinsic triangulation and the Dirichlet regularizer (a closed mesh, or
-        one without such sides, is solved as it is). The solver's ``split`` is the
-        :class:`~warp_regdist.BoundarySplit` (None without splits) and ``solve_mesh`` the mesh it
+    refine_obtuse : bool or None
+        With the intrinsic triangulation, insert vertices until no boundary side is opposite an obtuse
+        angle and no angle is above 120 degrees (:func:`~warp_regdist.refine_obtuse_angles`: feet of
+        altitudes on the boundary, circumcenters inside) and solve on the refined mesh: the distance then
+        does not dip below 0 beside such angles (docs/real-meshes.md). Outputs stay per input vertex;
+        ``duals`` are the refined mesh's; a new vertex between sources only is a source.
+        None: True with the intrinsic triangulation and the Dirichlet regularizer (a mesh without such
+        angles is solved as it is). The solver's ``refinement`` is the
+        :class:`~warp_regdist.ObtuseRefinement` (None without insertions) and ``solve_mesh`` the mesh it
         computes on.
 
     Examples
@@ -134,7 +134,7 @@ class DistanceSolver:
                  beta_hat: float | None = None, vector_field: ArrayLike | None = None, device: str | None = None,
                  dtype: str = "float64", workers: int | None = None, hierarchy: Hierarchy | None = None,
                  options: SolverOptions | None = None, triangulation: str | None = None,
-                 source_triangles: str | None = None, split_boundary: bool | None = None) -> None:
+                 source_triangles: str | None = None, refine_obtuse: bool | None = None) -> None:
         if not isinstance(mesh, Mesh):
             raise ValueError(f"expected a warp_regdist.Mesh, got {type(mesh).__name__}")
         alpha_hat = check_weight(alpha_hat, "alpha_hat")
@@ -150,15 +150,15 @@ class DistanceSolver:
         self._copy_arguments = dict(alpha_hat=alpha_hat, regularizer=regularizer, beta_hat=beta_hat,
                                     vector_field=vector_field, dtype=dtype, options=self.options,
                                     triangulation=triangulation, source_triangles=source_triangles,
-                                    split_boundary=split_boundary)
+                                    refine_obtuse=refine_obtuse)
         self._pool = None
         self.mesh = mesh
         self.alpha_hat = alpha_hat
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
         self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
-        self.split = boundary_split(mesh, triangulation, regularizer, split_boundary)
-        self.solve_mesh = solve_mesh = mesh if self.split is None else self.split.mesh
+        self.refinement = obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse)
+        self.solve_mesh = solve_mesh = mesh if self.refinement is None else self.refinement.mesh
         self.operators = ops = build_operators(solve_mesh, triangulation)
         self.regularizer = build_regularizer(solve_mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
@@ -182,11 +182,13 @@ class DistanceSolver:
 
     def source_mask(self, sources, column=0):
         """Validated vertex ``sources`` of column ``column`` -> (indices (s,) of ``solve_mesh``, reachable (n',)
-        bool: its vertices in the sources' connected components). A vertex the boundary splits inserted on
-        an edge whose two ends are sources is one too: the splits do not change where u = 0."""
+        bool: its vertices in the sources' connected components). A vertex the refinement inserted between
+        sources only (on an edge whose two ends are sources) is one too: it does not change where u = 0."""
         idx, reach = vertex_sources(sources, column, self.mesh.n_vertices, self.solve_mesh.components())
-        if self.split is not None:
-            idx = np.concatenate([idx, self.mesh.n_vertices + np.flatnonzero(np.isin(self.split.ends, idx).all(axis=1))])
+        if self.refinement is not None:
+            others = np.ones(self.mesh.n_vertices)
+            others[idx] = 0.0
+            idx = np.concatenate([idx, self.mesh.n_vertices + np.flatnonzero(abs(self.refinement.weights) @ others == 0.0)])
         return idx, reach
 
     # ------------------------------------------------------------------ public API
@@ -205,8 +207,8 @@ class DistanceSolver:
                              f"source set), got shape {np.shape(initial.distance)}")
         if np.isnan(u).any():
             raise ValueError(f"expected initial distances without NaN, got {np.count_nonzero(np.isnan(u))} NaN")
-        if self.split is not None:
-            u = self.split.interpolation() @ u
+        if self.refinement is not None:
+            u = self.refinement.interpolation() @ u
         if "duals" not in initial:
             return u, None, None
         y = np.asarray(initial.duals, dtype=np.float64)
@@ -349,8 +351,8 @@ class DistanceSolver:
         if capped.any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
                           f"{np.count_nonzero(capped)} of {k} source sets", ConvergenceWarning, stacklevel=3)
-        if self.split is not None:   # the inserted vertices are no outputs; vjp and polish keep them
-            res._on_split(self.split)
+        if self.refinement is not None:   # the inserted vertices are no outputs; vjp and polish keep them
+            res._on_refinement(self.refinement)
         return res
 
     def _ascend(self, res, sets, options):
@@ -400,7 +402,7 @@ class DistanceSolver:
         :meth:`close`; a pool with a dead worker is replaced)."""
         if self._pool is None or len(self._pool) < count or not self._pool.alive():
             self.close()
-            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, mesh=self.solve_mesh, split_boundary=False,
+            self._pool = WorkerPool(_SolverCopy, (dict(self._copy_arguments, mesh=self.solve_mesh, refine_obtuse=False,
                                                        hierarchy=self.hierarchy),),
                                     count, first_index=1)
         return self._pool
