@@ -51,6 +51,15 @@ def test_a_foot_near_a_corner_is_one_split():
     np.testing.assert_allclose(split.interpolation() @ V, split.mesh.vertices, atol=1e-15)
 
 
+def test_a_needle_thin_face_is_left_with_a_warning():
+    # splitting a face of area 5e-12 x its longest side squared could leave parts below the degenerate-element
+    # tolerance (1e-12): it is not split, and the angle left is reported
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1e-11, 0.0]])
+    with pytest.warns(wrd.MeshWarning, match=r"got 1 left \(a circumcenter beside a vertex or in a needle-thin face"):
+        split = wrd.refine_obtuse_angles(wrd.Mesh(V, [[0, 1, 2]]))
+    assert split.n_inserted == 0 and split.remaining == 1
+
+
 def test_a_mesh_without_such_angles_comes_back_as_it_is():
     mesh = wrd.Mesh(*meshes.icosphere(1, 1.0))
     split = wrd.refine_obtuse_angles(mesh)

@@ -33,6 +33,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
+from ..tolerances import tolerances
 from ..errors import MeshWarning
 from .intrinsic import _edges, _pairs, id_gradient, intrinsic_delaunay
 from .intrinsic_points import Dual, circumcenter, locator, trace, value
@@ -157,13 +158,14 @@ def _on_side(h, t):
 
 
 def _point(T, h, dual):
-    """The point of T to insert for halfedge h (:func:`_candidates`): (face of T, barycentric (3,))."""
+    """The point of T to insert for halfedge h (:func:`_candidates`): (face of T, barycentric (3,)), or
+    None where the line to the circumcenter does not end."""
     if T.twin[h] < 0:
         return h // 3, _foot(T, h, dual)
     f = h // 3
     g, beta = trace(T, f, circumcenter(T, f, dual), dual)
     if g is None:                                       # the circumcenter is beyond a boundary side
-        return beta // 3, _on_side(beta, 0.5)
+        return None if beta < 0 else (beta // 3, _on_side(beta, 0.5))
     return g, beta
 
 
@@ -208,15 +210,20 @@ def _rounds(mesh, interior_angle, dual=False):
         h0, h1 = _pairs(edge_id)
         twin[h0], twin[h1] = h1, h0
         locate = locator(T, dual)
-        used = np.zeros(F.shape[0], dtype=bool)         # one insertion per face of the mesh ...
-        used_T = np.zeros(T.faces.shape[0], dtype=bool)     # ... and of the triangulation a round
+        # one insertion per face of the mesh and of the triangulation a round; none in a face so thin that
+        # its parts could fall below the mesh's degenerate-element tolerance
+        E = V[F[:, 1:]] - V[F[:, :1]]
+        area = 0.5 * np.linalg.norm(np.cross(E[:, 0], E[:, 1]), axis=1)
+        used = area <= tolerances.degenerate_element / SNAP * np.einsum("mij,mij->mi", E, E).max(axis=1)
+        used_T = np.zeros(T.faces.shape[0], dtype=bool)
         taken = []
         for h in sides.tolist():
             if used_T[h // 3]:
                 continue
-            g, beta = _point(T, h, dual)
-            if used_T[g]:
+            point = _point(T, h, dual)
+            if point is None or used_T[point[0]]:
                 continue
+            g, beta = point
             placed = _placed(*locate(g, beta), F, twin)
             if placed is None or used[list(placed[0])].any():
                 continue
@@ -281,8 +288,8 @@ def refine_obtuse_angles(mesh: Mesh, interior_angle: float = INTERIOR_ANGLE) -> 
     V, F, weights, parent, _, remaining = _rounds(mesh, float(interior_angle))
     if remaining:
         warnings.warn(f"expected the refinement to remove every obtuse angle it looks for, got {remaining} left "
-                      f"(a circumcenter beside a vertex, or {MAX_ROUNDS} rounds); the distance may fall below 0 "
-                      "beside them", MeshWarning, stacklevel=2)
+                      f"(a circumcenter beside a vertex or in a needle-thin face, or {MAX_ROUNDS} rounds); the "
+                      "distance may fall below 0 beside them", MeshWarning, stacklevel=2)
     with warnings.catch_warnings():      # the input's duplicate or cracked vertices warned when it was built
         warnings.simplefilter("ignore", MeshWarning)
         refined = mesh if weights.shape[0] == 0 else Mesh(V, F)
