@@ -72,6 +72,8 @@ class ObtuseRefinement:
         The input mesh.
     interior_angle : float
         The bound on interior angles it was refined to (degrees).
+    triangulation : IntrinsicTriangulation or None
+        The intrinsic Delaunay triangulation of ``mesh`` (None on a tufted cover).
     """
 
     mesh: Mesh
@@ -80,6 +82,7 @@ class ObtuseRefinement:
     remaining: int
     original: Mesh
     interior_angle: float = INTERIOR_ANGLE
+    triangulation: object = None
 
     @property
     def n_inserted(self):
@@ -100,7 +103,7 @@ class ObtuseRefinement:
             raise ValueError(f"expected a gradient of shape {X.shape} (the refined mesh's vertices), got {g.shape}")
         if self.n_inserted == 0:
             return g
-        for T, n_r, corners, beta, dbeta in reversed(_rounds(self.original, self.interior_angle, dual=True)[4]):
+        for T, n_r, corners, beta, dbeta in reversed(_rounds(self.original, self.interior_angle, dual=True)[5]):
             gk = g[n_r:n_r + beta.shape[0]]
             g = g[:n_r]
             for c in range(3):
@@ -191,7 +194,8 @@ def _placed(face, at, beta, F, twin):
 
 def _rounds(mesh, interior_angle, dual=False):
     """Rounds of insertions into ``mesh``: (vertices (n', 3), faces (m', 3), weights (k, n), parent faces
-    (m',), rounds, remaining), each round (T, vertices before it, corners (s, 3), coordinates (s, 3),
+    (m',), the refined mesh's intrinsic Delaunay triangulation (None on a tufted cover), rounds,
+    remaining), each round (T, vertices before it, corners (s, 3), coordinates (s, 3),
     d(coordinates) / d(T's length ids) (3 s, ids) sparse (with ``dual``, else None))."""
     V = mesh.vertices.copy()
     F = mesh.elements.copy()
@@ -266,8 +270,9 @@ def _rounds(mesh, interior_angle, dual=False):
                             np.stack([c_, a_, ki], axis=1)])
         parent = np.concatenate([parent, parent[fs], parent[inside], parent[inside]])
     else:
-        remaining = _candidates(V, F, interior_angle)[1].size
-    return V, F, weights, parent, rounds, remaining
+        T, sides, _ = _candidates(V, F, interior_angle)
+        remaining = sides.size
+    return V, F, weights, parent, T, rounds, remaining
 
 
 def refine_obtuse_angles(mesh: Mesh, interior_angle: float = INTERIOR_ANGLE) -> ObtuseRefinement:
@@ -285,7 +290,7 @@ def refine_obtuse_angles(mesh: Mesh, interior_angle: float = INTERIOR_ANGLE) -> 
                          "local covers of the points, not a surface)")
     if not (isinstance(interior_angle, (int, float, np.floating, np.integer)) and 90.0 < interior_angle <= 180.0):
         raise ValueError(f"expected interior_angle in (90, 180] degrees, got {interior_angle!r}")
-    V, F, weights, parent, _, remaining = _rounds(mesh, float(interior_angle))
+    V, F, weights, parent, T, _, remaining = _rounds(mesh, float(interior_angle))
     if remaining:
         warnings.warn(f"expected the refinement to remove every obtuse angle it looks for, got {remaining} left "
                       f"(a circumcenter beside a vertex or in a needle-thin face, or {MAX_ROUNDS} rounds); the "
@@ -293,14 +298,14 @@ def refine_obtuse_angles(mesh: Mesh, interior_angle: float = INTERIOR_ANGLE) -> 
     with warnings.catch_warnings():      # the input's duplicate or cracked vertices warned when it was built
         warnings.simplefilter("ignore", MeshWarning)
         refined = mesh if weights.shape[0] == 0 else Mesh(V, F)
-    return ObtuseRefinement(refined, weights, parent, remaining, mesh, float(interior_angle))
+    return ObtuseRefinement(refined, weights, parent, remaining, mesh, float(interior_angle), T)
 
 
 def obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse):
-    """The :class:`ObtuseRefinement` a solver computes on (None: the mesh as it is) for ``refine_obtuse``
-    (True, False or None: True with the intrinsic triangulation and the Dirichlet regularizer, whose
-    maximum principle the refinement restores; the Hessian's minimizer dips below 0 on a boundary either
-    way)."""
+    """The :class:`ObtuseRefinement` a solver computes on (None: the mesh as it is, not refined) for
+    ``refine_obtuse`` (True, False or None: True with the intrinsic triangulation and the Dirichlet
+    regularizer, whose maximum principle the refinement restores; the Hessian's minimizer dips below 0 on
+    a boundary either way). It has n_inserted 0 where nothing was to be removed."""
     if refine_obtuse is None:
         refine_obtuse = triangulation == "intrinsic" and regularizer == "dirichlet"
     elif not isinstance(refine_obtuse, (bool, np.bool_)):
@@ -310,5 +315,4 @@ def obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse):
                          f"obtuse angles of the intrinsic Delaunay triangulation), got {triangulation!r}")
     if not refine_obtuse:
         return None
-    refinement = refine_obtuse_angles(mesh)
-    return refinement if refinement.n_inserted else None
+    return refine_obtuse_angles(mesh)

@@ -165,7 +165,7 @@ def choose_triangulation(mesh, regularizer="dirichlet", triangulation=None):
     return triangulation
 
 
-def build_operators(mesh: Mesh, triangulation: str = "mesh") -> Operators:
+def build_operators(mesh: Mesh, triangulation: str = "mesh", flipped=None) -> Operators:
     """Assemble the :class:`Operators` of a :class:`~warp_regdist.Mesh`.
 
     ``triangulation``: "mesh" builds them on the mesh's own elements; "intrinsic" on the intrinsic
@@ -174,6 +174,7 @@ def build_operators(mesh: Mesh, triangulation: str = "mesh") -> Operators:
     gradients are 2-vectors in each face's own frame (z = 0); on a non-manifold mesh they are those
     of its tufted cover, each face at half its area. The element volumes are multiplied by
     ``mesh.element_weights`` where it has them (point clouds, always on their own elements).
+    ``flipped``: the mesh's intrinsic Delaunay triangulation where it was computed already.
     """
     if triangulation not in ("mesh", "intrinsic"):
         raise ValueError(f"expected triangulation 'mesh' or 'intrinsic', got {triangulation!r}")
@@ -181,7 +182,7 @@ def build_operators(mesh: Mesh, triangulation: str = "mesh") -> Operators:
     if triangulation == "intrinsic" and mesh.element_dim == 2 and mesh.element_weights is None:
         from .intrinsic import flat_layout, intrinsic_delaunay
 
-        T = intrinsic_delaunay(mesh.vertices, mesh.elements)
+        T = intrinsic_delaunay(mesh.vertices, mesh.elements) if flipped is None else flipped
         if T.flip_count == 0:       # the mesh is intrinsically Delaunay already: its own operators
             return build_operators(mesh)
         m = T.faces.shape[0]

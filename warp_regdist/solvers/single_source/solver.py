@@ -157,9 +157,11 @@ class DistanceSolver:
         self.dtype = dtype
         self.scalar = SCALARS[dtype]
         self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
-        self.refinement = obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse)
+        refinement = obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse)
+        self.refinement = refinement if refinement is not None and refinement.n_inserted else None
         self.solve_mesh = solve_mesh = mesh if self.refinement is None else self.refinement.mesh
-        self.operators = ops = build_operators(solve_mesh, triangulation)
+        self.operators = ops = build_operators(solve_mesh, triangulation,
+                                               None if refinement is None else refinement.triangulation)
         self.regularizer = build_regularizer(solve_mesh, ops, regularizer, alpha_hat, beta_hat, vector_field)
         self.alpha = self.regularizer.alpha
         self.source_triangles = SourceTriangles(ops, check_source_triangles(source_triangles, mesh.element_dim))
