@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-__all__ = ["Dual", "value", "circumcenter", "trace", "locator"]
+__all__ = ["Dual", "value", "side_length", "circumcenter", "trace", "locator"]
 
 
 class Dual:
@@ -81,7 +81,7 @@ def _sqrt(x):
     return math.sqrt(max(x, 0.0))
 
 
-def _length(T, h, dual):
+def side_length(T, h, dual=False):
     """The length of halfedge h of T (a float, or a :class:`Dual` of its variable id)."""
     return Dual(T.lengths.flat[h], {int(T.length_ids.flat[h]): 1.0}) if dual else float(T.lengths.flat[h])
 
@@ -100,7 +100,7 @@ def _third(A, B, l_a, l_b, away):
 
 def _layout(T, f, dual):
     """Face f's corners in the plane: corner 0 at the origin, corner 1 on the x axis, corner 2 above."""
-    l01, l12, l20 = (_length(T, 3 * f + i, dual) for i in range(3))
+    l01, l12, l20 = (side_length(T, 3 * f + i, dual) for i in range(3))
     zero = Dual(0.0) if dual else 0.0
     return [(zero, zero), (l01, zero), _third((zero, zero), (l01, zero), l20, l12, (zero, -1.0))]
 
@@ -121,7 +121,7 @@ def _point(beta, X):
 
 def circumcenter(T, f, dual=False):
     """The barycentric coordinates (3,) of face f's circumcenter (outside f where an angle is obtuse)."""
-    l01, l12, l20 = (_length(T, 3 * f + i, dual) for i in range(3))
+    l01, l12, l20 = (side_length(T, 3 * f + i, dual) for i in range(3))
     a, b, c = l12 * l12, l20 * l20, l01 * l01           # squared sides opposite corners 0, 1, 2
     w = [a * (b + c - a), b * (c + a - b), c * (a + b - c)]
     total = w[0] + w[1] + w[2]
@@ -155,7 +155,8 @@ def trace(T, f, target, dual=False):
         Q = _point([start[k] + s * (beta[k] - start[k]) for k in range(3)], X)
         A, B = X[(c + 1) % 3], X[(c + 2) % 3]           # h runs A -> B; t runs B -> A in face g
         g, j = t // 3, t % 3
-        C = _third(B, A, _length(T, 3 * g + (j + 2) % 3, dual), _length(T, 3 * g + (j + 1) % 3, dual), X[c])
+        C = _third(B, A, side_length(T, 3 * g + (j + 2) % 3, dual), side_length(T, 3 * g + (j + 1) % 3, dual),
+                   X[c])
         X = [None] * 3
         X[j], X[(j + 1) % 3], X[(j + 2) % 3] = B, A, C
         f, entry = g, (j + 2) % 3

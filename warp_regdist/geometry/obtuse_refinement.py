@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from ..tolerances import tolerances
 from ..errors import MeshWarning
 from .intrinsic import _edges, _pairs, id_gradient, intrinsic_delaunay
-from .intrinsic_points import Dual, circumcenter, locator, trace, value
+from .intrinsic_points import Dual, circumcenter, locator, side_length, trace, value
 from .mesh import Mesh
 
 __all__ = ["ObtuseRefinement", "refine_obtuse_angles", "obtuse_angles", "obtuse_refinement"]
@@ -146,8 +146,7 @@ def _foot(T, h, dual):
     """The foot of the altitude onto halfedge h from the corner opposite, as barycentric coordinates (3,)
     of h's face."""
     f, i = h // 3, h % 3
-    l_ab, l_bc, l_ca = (Dual(T.lengths.flat[x], {int(T.length_ids.flat[x]): 1.0}) if dual else float(T.lengths.flat[x])
-                        for x in (3 * f + i, 3 * f + (i + 1) % 3, 3 * f + (i + 2) % 3))
+    l_ab, l_bc, l_ca = (side_length(T, 3 * f + (i + k) % 3, dual) for k in range(3))
     t = 0.5 + (l_ca * l_ca - l_bc * l_bc) / (2.0 * l_ab * l_ab)
     if not FOOT_RANGE[0] <= value(t) <= FOOT_RANGE[1]:
         t = float(np.clip(value(t), *FOOT_RANGE))
