@@ -336,4 +336,3 @@ def id_gradient(triangulation, vertices, grad_ids):
     np.add.at(out, a, ge)
     np.add.at(out, b, -ge)
     return out
-

@@ -17,12 +17,13 @@ NEGATIVE = 1e-6
 """A distance below -NEGATIVE x its column's max is reported (:func:`warn_below_zero`)."""
 
 
-def warn_below_zero(mesh, ops, u, converged, source_sets):
+def warn_below_zero(mesh, ops, u, converged, source_sets, refinable):
     """A MeshWarning naming the lowest vertex, its source set and the largest angle at it where some
     converged column of ``u`` (n, k) goes below -NEGATIVE of its max: the minimizer of the discrete problem dips
     below 0 next to badly shaped triangles (obtuse, where the cone of the distance from a source cannot
-    be represented), which the intrinsic triangulation and its refinement make rare but not impossible; on
-    a mesh with obtuse angles the refinement would remove it names ``refine_obtuse=True``."""
+    be represented), which the intrinsic triangulation and its refinement make rare but not impossible;
+    where the solver could refine and did not (``refinable``: an intrinsic triangulation, refine_obtuse off)
+    and the mesh has obtuse angles the refinement would remove, it names ``refine_obtuse=True``."""
     finite = np.where(np.isfinite(u), u, 0.0)
     top = finite.max(axis=0)
     low = finite.min(axis=0)
@@ -43,7 +44,7 @@ def warn_below_zero(mesh, ops, u, converged, source_sets):
             angle = float(np.max(largest_basis_angles(ops.basis[around]), initial=0.0))
             where = f"; the largest angle of a triangle at that vertex is {angle:.0f} degrees"
     remedy = "a finer or better shaped mesh near the sources avoids it"
-    if mesh.element_dim == 2 and mesh.element_weights is None and obtuse_angles(mesh.vertices, mesh.elements)[0].size:
+    if refinable and obtuse_angles(mesh.vertices, mesh.elements)[0].size:
         remedy = ("the mesh has obtuse angles that no flip removes (boundary sides opposite obtuse angles, angles "
                   "above 120 degrees): refine_obtuse=True inserts vertices there (the default with the Dirichlet "
                   "regularizer)")

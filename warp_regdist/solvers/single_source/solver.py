@@ -158,7 +158,8 @@ class DistanceSolver:
         self.scalar = SCALARS[dtype]
         self.triangulation = triangulation = choose_triangulation(mesh, regularizer, triangulation)
         refinement = obtuse_refinement(mesh, triangulation, regularizer, refine_obtuse)
-        self.refinement = refinement if refinement is not None and refinement.n_inserted else None
+        self._refines = refinement is not None
+        self.refinement = refinement if self._refines and refinement.n_inserted else None
         self.solve_mesh = solve_mesh = mesh if self.refinement is None else self.refinement.mesh
         self.operators = ops = build_operators(solve_mesh, triangulation,
                                                None if refinement is None else refinement.triangulation)
@@ -348,7 +349,8 @@ class DistanceSolver:
             warnings.warn(f"ADMM returned distances steeper than their constraint allows (max |grad u| relative to "
                           f"its bound {np.max(gradient[steep]):.3g}) for {np.count_nonzero(steep)} of {k} "
                           "source sets: not converged (needle-like elements?)", ConvergenceWarning, stacklevel=3)
-        warn_below_zero(self.solve_mesh, self.operators, res.distance, res.converged, source_sets)
+        warn_below_zero(self.solve_mesh, self.operators, res.distance, res.converged, source_sets,
+                        self.triangulation == "intrinsic" and self.mesh.element_dim == 2 and not self._refines)
         capped = ~res.converged & ~steep & ~stuck
         if capped.any() and not res.interrupted:
             warnings.warn(f"ADMM did not converge in {options.max_iterations} iterations for "
