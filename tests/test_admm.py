@@ -40,7 +40,8 @@ def test_schedule_values_and_offsets():
 
 
 def test_schedules_from_options():
-    assert PenaltySchedule.of(wrd.SolverOptions(), 3.0, (1.0, 8.0)) == PenaltySchedule(0.5, 32.0, 10.0, 3.0)
+    assert PenaltySchedule.of(wrd.SolverOptions(), 3.0, (1.0, 8.0, 1.0)) == PenaltySchedule(0.5, 32.0, 10.0, 3.0)
+    assert PenaltySchedule.of(wrd.SolverOptions(), 3.0, (0.5, 1.0, 2.0)) == PenaltySchedule(0.25, 4.0, 20.0, 3.0)
     pairs = wrd.AllPairsOptions()
     assert PenaltySchedule.of(pairs.for_engine("consensus"), 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
     assert PenaltySchedule.of(pairs.for_engine("eigenbasis"), 3.0) == PenaltySchedule(2.0, 32.0, 100.0, 3.0)

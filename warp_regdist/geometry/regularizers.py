@@ -36,6 +36,10 @@ SMALL_ALPHA_HAT, SMALL_ALPHA_FACTOR = 0.02, 0.25
 """Below alpha_hat 0.02 the Dirichlet and vector-field tolerances shrink linearly to 1/4 at 0: towards
 alpha 0 the problem nears a linear program and the ADMM creeps (docs/design/stopping.md)."""
 
+HESSIAN_SCHEDULE = (1.0, 8.0, 1.0)
+"""The Hessian's factors on rho0, rho_max and rho_doubling: its fourth-order term needs penalties up to
+8 times larger to converge in a few hundred iterations."""
+
 
 @dataclasses.dataclass(frozen=True)
 class Regularizer:
@@ -57,10 +61,11 @@ class Regularizer:
         (the options' ``cg_fraction``): 1; down to 1/4 below alpha_hat 0.02
         (:func:`small_alpha_factor`); 1/20 for the Hessian, whose inexact u-steps otherwise
         keep the primal residual above its tolerance.
-    rho_factors : (float, float)
-        Factors on the options' ``rho0`` and ``rho_max``: (1, 1), or (1, 8) for the
-        Hessian (penalty up to 64 sqrt(A)), whose fourth-order term needs larger penalties
-        to converge in a few hundred iterations.
+    schedule_factors : (float, float, float)
+        Factors on the options' ``rho0``, ``rho_max`` and ``rho_doubling``:
+        :func:`small_alpha_schedule` for "dirichlet" and "vector_field" (1, 1, 1 from alpha_hat
+        0.02 up; a penalty that starts at half and doubles half as fast at 0), ``HESSIAN_SCHEDULE``
+        for the Hessian.
     """
 
     name: str
@@ -68,7 +73,7 @@ class Regularizer:
     weights: sp.csr_matrix | None
     stiffness: sp.csr_matrix | None
     tolerance_factor: float
-    rho_factors: tuple
+    schedule_factors: tuple
 
     @property
     def rescaled(self):
@@ -86,6 +91,16 @@ def small_alpha_factor(alpha_hat):
     """Tolerance factor of the Dirichlet and vector-field problems: 1 from alpha_hat
     ``SMALL_ALPHA_HAT`` up, falling linearly to ``SMALL_ALPHA_FACTOR`` at alpha_hat 0."""
     return max(SMALL_ALPHA_FACTOR, min(1.0, alpha_hat / SMALL_ALPHA_HAT))
+
+
+def small_alpha_schedule(alpha_hat):
+    """Factors (rho0, rho_max, rho_doubling) of the Dirichlet and vector-field penalty schedule:
+    (1 - t / 2, 1, 1 + t) with t = 1 - min(1, alpha_hat / ``SMALL_ALPHA_HAT``), so that towards alpha 0
+    the penalty starts at half the default and doubles half as fast (0.25 L doubling every 20
+    iterations at alpha_hat 0): there a lower early penalty took a median 13-31% fewer iterations
+    (docs/design/single-source.md)."""
+    t = 1.0 - min(1.0, alpha_hat / SMALL_ALPHA_HAT)
+    return (1.0 - 0.5 * t, 1.0, 1.0 + t)
 
 
 def _on_pattern(matrix, pattern):
@@ -157,14 +172,15 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
         raise ValueError(f"expected {given} only with regularizer 'vector_field', got it with {name!r}")
     L = operators.length_scale
     if name == "dirichlet":
-        return Regularizer(name, alpha_hat * L, None, None, small_alpha_factor(alpha_hat), (1.0, 1.0))
+        return Regularizer(name, alpha_hat * L, None, None, small_alpha_factor(alpha_hat),
+                           small_alpha_schedule(alpha_hat))
     if name == "vector_field":
         if vector_field is None:
             raise ValueError("expected a vector_field (m, 3) for regularizer 'vector_field', got None")
         field = _check_field(vector_field, mesh.n_elements)
         beta = check_weight(10.0 if beta_hat is None else beta_hat, "beta_hat")
         W = _vector_field_matrix(operators, field, beta)
-        alpha, factor = alpha_hat * L, small_alpha_factor(alpha_hat)
+        alpha, factor, schedule = alpha_hat * L, small_alpha_factor(alpha_hat), small_alpha_schedule(alpha_hat)
     else:
         if mesh.elements.shape[1] != 3:
             raise ValueError(f"expected a triangle mesh for regularizer 'hessian', got a tetrahedral mesh "
@@ -177,9 +193,8 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
         if W.shape[0] < mesh.n_vertices:  # libigl sizes it by the largest referenced vertex
             W = sp.block_diag([W, sp.csr_matrix((mesh.n_vertices - W.shape[0],) * 2)], format="csr")
         W = (W + W.T) * 0.5
-        alpha, factor = alpha_hat * operators.total_volume ** 1.5, HESSIAN_TOLERANCE_FACTOR
+        alpha, factor, schedule = alpha_hat * operators.total_volume ** 1.5, HESSIAN_TOLERANCE_FACTOR, HESSIAN_SCHEDULE
     WD = operators.stiffness
     pattern = (abs(W) + abs(WD) + sp.identity(WD.shape[0], format="csr")).tocsr()
     pattern.sort_indices()
-    return Regularizer(name, alpha, _on_pattern(W, pattern), _on_pattern(WD, pattern), factor,
-                       (1.0, 8.0) if name == "hessian" else (1.0, 1.0))
+    return Regularizer(name, alpha, _on_pattern(W, pattern), _on_pattern(WD, pattern), factor, schedule)

@@ -98,9 +98,10 @@ class PenaltySchedule:
         return max(0.0, self.doubling * math.log2(penalty / self.scale / self.rho0))
 
     @classmethod
-    def of(cls, options, scale, rho_factors=(1.0, 1.0)):
-        """The schedule of a solver's ``options``: their ``schedule`` when they carry one, else rho0 and
-        rho_max (times the regularizer's ``rho_factors``) and rho_doubling, in units of ``scale``."""
+    def of(cls, options, scale, factors=(1.0, 1.0, 1.0)):
+        """The schedule of a solver's ``options``: their ``schedule`` when they carry one, else rho0,
+        rho_max and rho_doubling times ``factors`` (the regularizer's ``schedule_factors``), the
+        penalties in units of ``scale``."""
         if options.schedule is not None:
             return options.schedule
-        return cls(rho_factors[0] * options.rho0, rho_factors[1] * options.rho_max, options.rho_doubling, scale)
+        return cls(factors[0] * options.rho0, factors[1] * options.rho_max, factors[2] * options.rho_doubling, scale)

@@ -489,7 +489,7 @@ class DistanceSolver:
         for name in ("u", "z", "y", "Dy", "Dz", "snapshot", "moved_last", "step"):
             getattr(ws, name).zero_()
         L = self.operators.length_scale
-        schedule = PenaltySchedule.of(options, L, self.regularizer.rho_factors)
+        schedule = PenaltySchedule.of(options, L, self.regularizer.schedule_factors)
         # iteration it runs with rho = schedule.rho(it + offset); a warm start continues the
         # schedule from the penalty it carries. The change test compares with u0 (zero or the start's).
         offset = 0.0
