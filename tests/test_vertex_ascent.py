@@ -89,15 +89,17 @@ def test_no_gauge_rises_above_one_and_the_objective_never_falls(alpha_hat):
 
 
 def test_a_stop_one_vertex_away_from_the_minimizer_is_corrected(monkeypatch):
-    # cheburashka decimated to 434 vertices, source 320, alpha_hat 0: the ADMM stops (change tests held) with
-    # vertex 323 at 0.73% of the max from the exact minimizer; moved alone it lands within 0.03%
+    # cheburashka decimated to 434 vertices, source 320, alpha_hat 0, under the penalty schedule of alpha_hat
+    # 0.02 and up: the ADMM stops (change tests held) with vertex 323 at 0.73% of the max from the exact
+    # minimizer; moved alone it lands within 0.03%
     mesh = _scan(16)
     solver = wrd.DistanceSolver(mesh, 0.0, workers=1)
+    schedule = wrd.PenaltySchedule(0.5, 4.0, 10.0, solver.operators.length_scale)
     exact = solve_reference(mesh.vertices, mesh.elements, [320], 0.0)
     top = exact.max()
-    res = solver.solve([320])
+    res = solver.solve([320], schedule=schedule)
     monkeypatch.setattr(solver.vertex_ascent, "ascend", lambda u, free, sources, threshold: (u, 0.0 * threshold))
-    without = solver.solve([320])                                                  # the same stop, no ascent
+    without = solver.solve([320], schedule=schedule)                               # the same stop, no ascent
     assert res.converged and res.iterations == without.iterations
     assert np.abs(without.distance - exact).max() / top > 5e-3
     assert np.abs(res.distance - exact).max() / top < 1e-3
@@ -110,7 +112,7 @@ def _split_beetle():
 
 
 def test_a_region_of_small_triangles_left_below_zero_is_lifted():
-    # source 1240 at alpha_hat 0: the ADMM stops after 640 iterations with two vertices at -4.3% and -5.5% of the
+    # source 1240 at alpha_hat 0: the ADMM stops after 440 iterations with two vertices at -9.5% and -12.1% of the
     # max (the exact minimizer has +0.42% and +0.37%; ADMM needs about 30,000 iterations to get there)
     solver = wrd.DistanceSolver(_split_beetle(), 0.0, workers=1, refine_obtuse=False)
     res = solver.solve([1240])
@@ -124,7 +126,7 @@ def test_moves_left_above_the_tolerance_are_not_converged(monkeypatch):
     monkeypatch.setattr(vertex_ascent, "MAX_ROUNDS", 0)
     solver = wrd.DistanceSolver(_split_beetle(), 0.0, workers=1, refine_obtuse=False)
     with pytest.warns(wrd.ConvergenceWarning, match=r"1 of 1 source sets stopped with a vertex that alone could "
-                      r"still move by 5\.\d+% of the max \(more than eps_estimate 0\.125%\): not converged; "
+                      r"still move by 12\.\d+% of the max \(more than eps_estimate 0\.125%\): not converged; "
                       r"res\.polish\(\) finds the minimizer"):
         res = solver.solve([1240])
     assert not res.converged and res.error_estimate > 0.05
