@@ -215,8 +215,8 @@ def test_cli_vector_field_from_a_directions_csv(tmp_path, capsys):
 @pytest.mark.parametrize("alpha_hat, factors", [(0.0, (0.5, 1.0, 2.0)), (0.01, (0.75, 1.0, 1.5)),
                                                 (0.02, (1.0, 1.0, 1.0)), (0.05, (1.0, 1.0, 1.0))])
 def test_penalty_schedule_slows_towards_alpha_zero(alpha_hat, factors):
-    # Dirichlet and vector field: rho0 x (1 - t/2), doubling x (1 + t), t = 1 - alpha_hat / 0.02 (from 0.02 up, 0);
-    # the Hessian keeps its own factors at every alpha_hat
+    # Dirichlet and vector field on triangles: rho0 x (1 - t/2), doubling x (1 + t), t = 1 - alpha_hat / 0.02 (from
+    # 0.02 up, 0); tetrahedra and the Hessian keep their own factors at every alpha_hat
     solver = wrd.DistanceSolver(wrd.Mesh(_V, _F), alpha_hat=alpha_hat, device="cpu")
     assert solver.regularizer.schedule_factors == pytest.approx(factors, abs=1e-12)
     field = wrd.DistanceSolver(wrd.Mesh(_V, _F), alpha_hat=alpha_hat, device="cpu", regularizer="vector_field",
@@ -224,3 +224,5 @@ def test_penalty_schedule_slows_towards_alpha_zero(alpha_hat, factors):
     assert field.regularizer.schedule_factors == pytest.approx(factors, abs=1e-12)
     hessian = wrd.DistanceSolver(wrd.Mesh(_V, _F), alpha_hat=alpha_hat, device="cpu", regularizer="hessian")
     assert hessian.regularizer.schedule_factors == (1.0, 8.0, 1.0)
+    tets = wrd.DistanceSolver(wrd.Mesh(*meshes.cube_tets(2)), alpha_hat=alpha_hat, device="cpu")   # no faster there
+    assert tets.regularizer.schedule_factors == (1.0, 1.0, 1.0)

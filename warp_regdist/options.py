@@ -112,7 +112,7 @@ class SolverOptions(_Options):
     rho0, rho_max, rho_doubling : float
         The penalty schedule rho_k = L min(rho_max, rho0 2^(k / rho_doubling)) (the regularizer's
         factors apply: the Hessian's rho_max is 8 times larger; below alpha_hat 0.02 the Dirichlet and
-        vector-field rho0 shrinks to 1/2 and rho_doubling grows to 2 times at alpha_hat 0).
+        vector-field rho0 on triangles shrinks to 1/2 and rho_doubling grows to 2 times at alpha_hat 0).
     schedule : object or None
         Instead of the three above: a :class:`~warp_regdist.PenaltySchedule` or any object with
         ``rho(k)`` (absolute penalty, float k after a warm start) and ``offset_for(penalty)``;

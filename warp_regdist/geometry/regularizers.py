@@ -63,9 +63,9 @@ class Regularizer:
         keep the primal residual above its tolerance.
     schedule_factors : (float, float, float)
         Factors on the options' ``rho0``, ``rho_max`` and ``rho_doubling``:
-        :func:`small_alpha_schedule` for "dirichlet" and "vector_field" (1, 1, 1 from alpha_hat
-        0.02 up; a penalty that starts at half and doubles half as fast at 0), ``HESSIAN_SCHEDULE``
-        for the Hessian.
+        :func:`small_alpha_schedule` for "dirichlet" and "vector_field" (on triangles, 1, 1, 1 from
+        alpha_hat 0.02 up, a penalty that starts at half and doubles half as fast at 0; on tetrahedra
+        1, 1, 1), ``HESSIAN_SCHEDULE`` for the Hessian.
     """
 
     name: str
@@ -93,12 +93,15 @@ def small_alpha_factor(alpha_hat):
     return max(SMALL_ALPHA_FACTOR, min(1.0, alpha_hat / SMALL_ALPHA_HAT))
 
 
-def small_alpha_schedule(alpha_hat):
-    """Factors (rho0, rho_max, rho_doubling) of the Dirichlet and vector-field penalty schedule:
-    (1 - t / 2, 1, 1 + t) with t = 1 - min(1, alpha_hat / ``SMALL_ALPHA_HAT``), so that towards alpha 0
-    the penalty starts at half the default and doubles half as fast (0.25 L doubling every 20
-    iterations at alpha_hat 0): there a lower early penalty took a median 13-31% fewer iterations
+def small_alpha_schedule(alpha_hat, element_dim=2):
+    """Factors (rho0, rho_max, rho_doubling) of the Dirichlet and vector-field penalty schedule: on
+    triangles (``element_dim`` 2) (1 - t / 2, 1, 1 + t) with t = 1 - min(1, alpha_hat /
+    ``SMALL_ALPHA_HAT``), so that towards alpha 0 the penalty starts at half the default and doubles
+    half as fast (0.25 L doubling every 20 iterations at alpha_hat 0): there a lower early penalty took
+    a median 13-31% fewer iterations; (1, 1, 1) on tetrahedra, where it took no fewer
     (docs/design/single-source.md)."""
+    if element_dim != 2:
+        return (1.0, 1.0, 1.0)
     t = 1.0 - min(1.0, alpha_hat / SMALL_ALPHA_HAT)
     return (1.0 - 0.5 * t, 1.0, 1.0 + t)
 
@@ -173,14 +176,15 @@ def build_regularizer(mesh, operators, name="dirichlet", alpha_hat=0.05, beta_ha
     L = operators.length_scale
     if name == "dirichlet":
         return Regularizer(name, alpha_hat * L, None, None, small_alpha_factor(alpha_hat),
-                           small_alpha_schedule(alpha_hat))
+                           small_alpha_schedule(alpha_hat, mesh.element_dim))
     if name == "vector_field":
         if vector_field is None:
             raise ValueError("expected a vector_field (m, 3) for regularizer 'vector_field', got None")
         field = _check_field(vector_field, mesh.n_elements)
         beta = check_weight(10.0 if beta_hat is None else beta_hat, "beta_hat")
         W = _vector_field_matrix(operators, field, beta)
-        alpha, factor, schedule = alpha_hat * L, small_alpha_factor(alpha_hat), small_alpha_schedule(alpha_hat)
+        alpha, factor = alpha_hat * L, small_alpha_factor(alpha_hat)
+        schedule = small_alpha_schedule(alpha_hat, mesh.element_dim)
     else:
         if mesh.elements.shape[1] != 3:
             raise ValueError(f"expected a triangle mesh for regularizer 'hessian', got a tetrahedral mesh "

@@ -70,7 +70,7 @@ class DistanceSolver:
     regularizer : {"dirichlet", "vector_field", "hessian"}
         The quadratic regularizer W (docs/method.md section 3). "hessian" needs a triangle mesh and
         stops at tolerances / 20; below alpha_hat 0.02 the others stop at tolerances shrinking to / 4
-        and their penalty starts lower and doubles more slowly (docs/method.md section 8).
+        and on triangles their penalty starts lower and doubles more slowly (docs/method.md section 8).
     beta_hat : float or None
         Alignment weight >= 0 of "vector_field" (default 10; scale-invariant).
     vector_field : (m, 3) array_like or None
