@@ -98,7 +98,7 @@ def small_alpha_schedule(alpha_hat, element_dim=2):
     triangles (``element_dim`` 2) (1 - t / 2, 1, 1 + t) with t = 1 - min(1, alpha_hat /
     ``SMALL_ALPHA_HAT``), so that towards alpha 0 the penalty starts at half the default and doubles
     half as fast (0.25 L doubling every 20 iterations at alpha_hat 0): there a lower early penalty took
-    a median 13-31% fewer iterations; (1, 1, 1) on tetrahedra, where it took no fewer
+    a median 13-46% fewer iterations on most meshes measured; (1, 1, 1) on tetrahedra, where it took no fewer
     (docs/design/single-source.md)."""
     if element_dim != 2:
         return (1.0, 1.0, 1.0)
