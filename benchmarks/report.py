@@ -29,6 +29,8 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 DATA = os.path.join(ROOT, "docs", "data")
@@ -50,6 +52,20 @@ def run_child(script, case):
     row = json.loads(line[0][len("RESULT "):])
     print("  " + json.dumps(row), file=sys.stderr, flush=True)
     return row
+
+
+def cached(cache, key, compute):
+    """The array cached under ``key`` in the folder ``cache``, else compute() (None when compute is None),
+    saved there."""
+    path = os.path.join(cache, key.replace(" ", "_") + ".npy")
+    if os.path.exists(path):
+        return np.load(path)
+    if compute is None:
+        return None
+    value = compute()
+    os.makedirs(cache, exist_ok=True)
+    np.save(path, value)
+    return value
 
 
 def print_result(row):

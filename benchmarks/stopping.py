@@ -38,7 +38,7 @@ sys.path.append(TESTS)  # reference_solver, all_pairs_reference (after benchmark
 
 import meshes  # noqa: E402
 import warp_regdist as wrd  # noqa: E402
-from report import markdown_table, write_csv  # noqa: E402
+from report import cached, markdown_table, write_csv  # noqa: E402
 
 RESULTS = os.path.join(HERE, "results", "stopping.csv")
 PREVIOUS = dict(single=dict(eps_rel=2.5e-4, eps_rel_dual=0.15, rho0=0.5, rho_max=8.0, rho_doubling=30.0,
@@ -80,19 +80,6 @@ def larger_pairs_set():
     """cat_rr decimated to 250 vertices: an all-pairs case whose exact minimizer takes Clarabel about
     25 minutes and 2 GB (``--larger``)."""
     return [("cat_rr decimated", decimated("cat_rr", 250))]
-
-
-def cached(cache, key, compute):
-    """The array cached under ``key``, else compute() (None when compute is None), saved there."""
-    path = os.path.join(cache, key.replace(" ", "_") + ".npy")
-    if os.path.exists(path):
-        return np.load(path)
-    if compute is None:
-        return None
-    value = compute()
-    os.makedirs(cache, exist_ok=True)
-    np.save(path, value)
-    return value
 
 
 def error_pct(u, exact):
