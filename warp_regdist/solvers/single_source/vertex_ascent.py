@@ -44,20 +44,23 @@ class VertexAscent:
         n = ops.vertex_volumes.size
         # the hat function's gradient at each corner: a vertex at two corners of a triangle (intrinsic
         # triangulations have them) moves both
-        same = (E[:, :, None] == E[:, None, :]).astype(np.float64)                  # (m, c, c)
-        self.hat = np.einsum("mcl,mld->mcd", same, ops.basis)
+        self.hat = ops.basis.copy()
+        twice = np.flatnonzero((E[:, :, None] == E[:, None, :]).sum(axis=(1, 2)) > c)   # elements with such a vertex
+        if twice.size:
+            same = (E[twice, :, None] == E[twice, None, :]).astype(np.float64)       # (r, c, c)
+            self.hat[twice] = np.einsum("mcl,mld->mcd", same, ops.basis[twice])
         self.corner_norms = np.square(self.hat).sum(axis=2)                        # (m, c) |b|^2
         flat = E.ravel()
         self.order = np.argsort(flat, kind="stable")                               # (element, corner) by vertex
         counts = np.bincount(flat, minlength=n)
         self.has_elements = counts > 0
         self.starts = np.concatenate([[0], np.cumsum(counts)[:-1]])[self.has_elements]
-        rows = np.repeat(E, c, axis=1).ravel()
-        cols = np.tile(E, (1, c)).ravel()
-        touch = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n)) + abs(self.W)
-        touch = touch.tocsr()
+        # vertices that share an element or a W entry: the pattern of B B^T + |W|, B the (n, m) incidence
+        incidence = sp.csr_matrix((np.ones(flat.size), (flat, np.repeat(np.arange(m), c))), shape=(n, m))
+        touch = (incidence @ incidence.T + abs(self.W)).tocsr()
         touch.setdiag(0)
         touch.eliminate_zeros()
+        touch.sort_indices()
         self.neighbours = touch
         self.has_neighbours = np.diff(touch.indptr) > 0
         # a fixed order of the vertices that breaks ties between neighbours' equal moves (a symmetric mesh has them)
