@@ -6,10 +6,10 @@ Prints a markdown table and writes benchmarks/results/regularizers.csv. Rows:
 Dirichlet (alpha_hat 0.05), vector-field alignment (alpha_hat 0.05, beta_hat 10, the line
 field through two constrained faces), Hessian (alpha_hat 0.05 and 1e-3). "varied" is the
 default schedule rho_k = L min(rho_max, rho0 2^((k - 1) / rho_doubling)), L = sqrt(A), with the
-regularizer's factors (docs/method.md section 8; Hessian: rho_max x8); "fixed" keeps rho = 2 sqrt(A) (the authors' rho_0) for the whole solve. The
-difference column is against the same problem solved with the varied schedule at
-tolerances / 10 (max over vertices, % of the maximal distance). Times are single solves
-after one warm-up (noisy on a shared machine).
+regularizer's factors (docs/method.md section 8; Hessian: rho_max x8); "fixed" keeps
+rho = 2 sqrt(A) (the authors' rho_0) for the whole solve. The difference column is against
+the same problem solved with the varied schedule at tolerances / 10 (max over vertices, % of
+the maximal distance). Times are single solves after one warm-up (noisy on a shared machine).
 """
 
 import os
