@@ -44,10 +44,11 @@ class VertexAscent:
         n = ops.vertex_volumes.size
         # the hat function's gradient at each corner: a vertex at two corners of a triangle (intrinsic
         # triangulations have them) moves both
-        self.hat = ops.basis.copy()
+        self.hat = ops.basis                                                       # (m, c, d), read only
         twice = np.flatnonzero((E[:, :, None] == E[:, None, :]).sum(axis=(1, 2)) > c)   # elements with such a vertex
         if twice.size:
             same = (E[twice, :, None] == E[twice, None, :]).astype(np.float64)       # (r, c, c)
+            self.hat = ops.basis.copy()
             self.hat[twice] = np.einsum("mcl,mld->mcd", same, ops.basis[twice])
         self.corner_norms = np.square(self.hat).sum(axis=2)                        # (m, c) |b|^2
         flat = E.ravel()
