@@ -44,10 +44,14 @@ def test_schedules_from_options():
     assert PenaltySchedule.of(wrd.SolverOptions(), 3.0, (0.5, 1.0, 2.0)) == PenaltySchedule(0.25, 4.0, 20.0, 3.0)
     pairs = wrd.AllPairsOptions()
     assert PenaltySchedule.of(pairs.for_engine("consensus"), 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
-    assert PenaltySchedule.of(pairs.for_engine("eigenbasis"), 3.0) == PenaltySchedule(2.0, 32.0, 100.0, 3.0)
+    assert PenaltySchedule.of(pairs.for_engine("eigenbasis"), 3.0) == PenaltySchedule(2.0, 64.0, 100.0, 3.0)
+    coarse = wrd.AllPairsOptions.for_accuracy(0.01)
+    assert PenaltySchedule.of(coarse.for_engine("eigenbasis"), 3.0) == PenaltySchedule(2.0, 32.0, 100.0, 3.0)
+    assert PenaltySchedule.of(coarse.for_engine("consensus"), 3.0) == PenaltySchedule(0.5, 8.0, 30.0, 3.0)
     assert PenaltySchedule.of(wrd.SolverOptions(rho0=1.0), 1.0).rho0 == 1.0
     doubling = wrd.AllPairsOptions(rho_doubling=15.0).for_engine("eigenbasis")
-    assert PenaltySchedule.of(doubling, 1.0) == PenaltySchedule(2.0, 32.0, 15.0, 1.0)
+    assert PenaltySchedule.of(doubling, 1.0) == PenaltySchedule(2.0, 64.0, 15.0, 1.0)
+    assert PenaltySchedule.of(wrd.AllPairsOptions(rho_max=32.0).for_engine("eigenbasis"), 1.0).rho_max == 32.0
     constant = _Constant()
     assert PenaltySchedule.of(wrd.SolverOptions(schedule=constant), 1.0) is constant
 

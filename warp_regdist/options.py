@@ -250,11 +250,11 @@ class AllPairsOptions(_Options):
     _OPTIONAL: ClassVar[tuple[str, ...]] = ("rho0", "rho_max", "rho_doubling", "max_iterations")
 
     def for_engine(self, engine):
-        """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties
-        (``ENGINES[engine].penalties``) in the penalty fields left None."""
+        """These options with ``engine`` ("eigenbasis" or "consensus") and its penalties at their accuracy
+        (``ENGINES[engine].penalties_at(self.accuracy)``) in the penalty fields left None."""
         from .solvers.all_pairs.engine import ENGINES
 
-        defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINES[engine].penalties))
+        defaults = dict(zip(("rho0", "rho_max", "rho_doubling"), ENGINES[engine].penalties_at(self.accuracy)))
         return self.replace(engine=engine, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
     _POSITIVE: ClassVar[tuple[str, ...]] = ("eps_rel", "eps_rel_consensus", "eps_rel_dual", "eps_change", "eps_excess", "relaxation", "rho0",
                  "rho_max", "rho_doubling", "rho2_factor", "cg_fraction", "cg_rtol", "max_gradient")

@@ -18,7 +18,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["EngineKind", "ENGINES", "choose_engine", "PairsEngine"]
+__all__ = ["EngineKind", "ENGINES", "FINE_ACCURACY", "choose_engine", "PairsEngine"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,10 +33,24 @@ class EngineKind:
         ``array_bytes(n, m, itemsize, cols)`` -> (device bytes, host bytes beyond the result and the
         change test's copies) of its state, cols = n padded to whole lanes
         (:func:`~warp_regdist.solvers.all_pairs.memory.memory_estimate` adds the rest).
+    fine_rho_max : float or None
+        Its rho_max at accuracies below ``FINE_ACCURACY`` (None: ``penalties``' at every accuracy).
     """
 
     penalties: tuple[float, float, float]
     array_bytes: Callable[[int, int, int, int], tuple[int, int]]
+    fine_rho_max: float | None = None
+
+    def penalties_at(self, accuracy):
+        """(rho0, rho_max, rho_doubling) of a run at ``accuracy``."""
+        rho0, rho_max, doubling = self.penalties
+        if self.fine_rho_max is not None and accuracy < FINE_ACCURACY:
+            rho_max = self.fine_rho_max
+        return rho0, rho_max, doubling
+
+
+FINE_ACCURACY = 0.01
+"""The accuracy below which an engine's ``fine_rho_max`` applies."""
 
 
 ENGINES = {
@@ -48,10 +62,11 @@ ENGINES = {
     # and four temporaries, its right-hand side, a temporary and A_V A_V^T, its bordered LU (float64) and its
     # result in lanes
     "eigenbasis": EngineKind((2.0, 32.0, 100.0), lambda n, m, size, cols: (
-        size * cols * (6 * n + 3 * m), size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols)),
+        size * cols * (6 * n + 3 * m), size * 9 * n * n + 8 * (n + 1) ** 2 + size * n * cols), fine_rho_max=64.0),
 }
 """The engines by name. The eigenbasis engine's U-step is exact at any penalty and converges sooner on a
-schedule four times higher and three times slower (docs/design/all-pairs.md)."""
+schedule four times higher and three times slower, and below accuracy 0.01 with a cap twice as high, which
+ends the plateaus where a few pairs' multipliers drift sooner (docs/design/all-pairs.md)."""
 
 
 def choose_engine(engine, n, on_cpu, eigenbasis_max_vertices):
