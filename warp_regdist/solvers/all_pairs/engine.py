@@ -44,7 +44,7 @@ class EngineKind:
     def penalties_at(self, accuracy):
         """(rho0, rho_max, rho_doubling) of a run at ``accuracy``."""
         rho0, rho_max, doubling = self.penalties
-        if self.fine_rho_max is not None and accuracy < FINE_ACCURACY:
+        if self.fine_rho_max is not None and accuracy < FINE_ACCURACY * (1 - 1e-9):  # 0.01 itself after eps_change / 0.7
             rho_max = self.fine_rho_max
         return rho0, rho_max, doubling
 
