@@ -199,9 +199,10 @@ class AllPairsOptions(_Options):
     relaxation : float
         Over-relaxation of all three steps.
     rho0, rho_max, rho_doubling : float or None
-        rho_k = L min(rho_max, rho0 2^(k / rho_doubling)); None: the engine's own,
-        ``ENGINES[engine].penalties`` of :mod:`warp_regdist.solvers.all_pairs.engine` (the eigenbasis engine's U-step is exact at any penalty and converges
-        sooner on a schedule four times higher and three times slower).
+        rho_k = L min(rho_max, rho0 2^(k / rho_doubling)); None: the engine's own at the run's accuracy,
+        ``ENGINES[engine].penalties_at(accuracy)`` of :mod:`warp_regdist.solvers.all_pairs.engine` (the eigenbasis
+        engine's U-step is exact at any penalty and converges sooner on a schedule four times higher and three
+        times slower, capped at 32 L from accuracy 0.01 and at 64 L below).
     rho2_factor : float
         The consensus penalty rho2 = rho2_factor rho^2 / (L A).
     schedule : object or None
